@@ -1,0 +1,46 @@
+"""The ``neo`` command line. Every verb is a dataclass config (tyro) with a ``run()`` method."""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Sequence
+from typing import Annotated, Union
+
+import tyro
+from rich.console import Console
+
+from neoedit.cli.data import InfoCommand
+from neoedit.cli.sim import SimBenchmarkCommand, SimSceneCommand
+from neoedit.errors import NeoError
+
+SimCommands = Annotated[
+    Union[  # noqa: UP007 (tyro reads the Union)
+        Annotated[SimSceneCommand, tyro.conf.subcommand("scene")],
+        Annotated[SimBenchmarkCommand, tyro.conf.subcommand("benchmark")],
+    ],
+    tyro.conf.subcommand("sim", description="Simulated tabletop scans before/after manipulation (NEO-Sim)."),
+]
+
+Commands = Union[  # noqa: UP007
+    SimCommands,
+    Annotated[InfoCommand, tyro.conf.subcommand("info")],
+]
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``neo``; returns the exit status (0 ok, 2 bad input, 130 interrupted)."""
+    command = tyro.cli(Commands, prog="neo", args=argv)  # type: ignore[call-overload]
+    err = Console(stderr=True)
+    try:
+        command.run()
+    except NeoError as e:
+        err.print(f"[bold red]error:[/] {e}", highlight=False)
+        return 2
+    except KeyboardInterrupt:
+        err.print("[yellow]interrupted[/]")
+        return 130
+    return 0
+
+
+def entry() -> None:
+    sys.exit(main())

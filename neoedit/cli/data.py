@@ -1,0 +1,34 @@
+"""``neo info``: what a dataset holds, as our parsers read it."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import tyro
+from rich.console import Console
+
+from neoedit.data import load_scene_data
+
+
+@dataclass
+class InfoCommand:
+    """Load a dataset (nerfstudio transforms.json or Blender) and print a summary."""
+
+    data: tyro.conf.Positional[Path]
+    """Dataset folder (or its transforms.json)."""
+
+    def run(self) -> None:
+        d = load_scene_data(self.data)
+        c = Console()
+        c.print(f"[bold]{d.root}[/]: {len(d)} frames of {d.width}x{d.height}")
+        c.print("splits: " + ", ".join(f"{k}={len(v)}" for k, v in d.split.items()))
+        c.print(f"focal (px): {np.median(d.cameras.fx):.1f}; camera centres within "
+                f"{np.round(d.camera_aabb_m(), 3).tolist()} m")
+        c.print(f"depth: {'yes' if d.depth_m is not None else 'no'}; instance labels: "
+                f"{'yes' if d.instance_ids is not None else 'no'}; loss masks: {'yes' if d.loss_mask is not None else 'no'}")
+        if d.instance_names:
+            c.print("instances: " + ", ".join(f"{i}={n}" for i, n in sorted(d.instance_names.items())))
+        for obj in d.objects:
+            c.print(f"  {obj['name']}: box {obj['box']}")

@@ -1,0 +1,96 @@
+"""``neo sim scene`` and ``neo sim benchmark``."""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import tyro
+from rich.console import Console
+from rich.table import Table
+
+from neoedit.errors import NeoError
+from neoedit.sim.spec import load_scene_spec
+from neoedit.sim.suite import benchmark_scenes
+from neoedit.utils.io import atomic_write_json
+
+console = Console()
+
+
+def _dir_size_mb(path: Path) -> float:
+    return sum(f.stat().st_size for f in path.rglob("*") if f.is_file()) / 1e6
+
+
+@dataclass
+class SimSceneCommand:
+    """Simulate one scene from a YAML/JSON spec: pre scan, then a scan after every action."""
+
+    spec: tyro.conf.Positional[Path]
+    """Scene spec file (.yaml/.yml/.json); see neoedit.sim.spec.SceneSpec."""
+    out: Path
+    """Output scene directory (pre/, post*/ and scene.json); written atomically."""
+    objects_dir: Path | None = None
+    """Folder of extra URDF models, referenced as 'objects_dir:NAME' in the spec (e.g. YCB)."""
+    overwrite: bool = False
+    """Replace OUT if it exists."""
+
+    def run(self) -> None:
+        from neoedit.sim.run import simulate_scene  # imports pybullet, which prints a banner
+
+        spec = load_scene_spec(self.spec)
+        summary = simulate_scene(spec, self.out, self.spec.parent, self.objects_dir, self.overwrite)
+        console.print(f"wrote {self.out} ({', '.join(summary['scans'])}) in {summary['seconds']:.1f} s, "
+                      f"{_dir_size_mb(self.out):.1f} MB")
+
+
+@dataclass
+class SimBenchmarkCommand:
+    """Write the NEO-Sim suite: 5 removal, 6 pick-and-place and 1 four-step assembly scene."""
+
+    out: Path
+    """Output folder: one sub-folder per scene plus suite.json."""
+    profile: Literal["small", "standard"] = "standard"
+    """small: 64x48 px, 12+3 views (tests); standard: 320x240 px, 96+12 views (benchmarks)."""
+    seed: int = 0
+    """Seed of the object placement; same seed, same files."""
+    only: tuple[str, ...] = ()
+    """Generate only these scenes (e.g. removal_1 assembly)."""
+    overwrite: bool = False
+    """Regenerate scenes that already exist (otherwise they are kept and skipped)."""
+
+    def run(self) -> None:
+        from neoedit.sim.run import simulate_scene  # imports pybullet, which prints a banner
+
+        scenes = benchmark_scenes(self.profile, self.seed)
+        known = [s.name for s in scenes]
+        unknown = sorted(set(self.only) - set(known))
+        if unknown:
+            raise NeoError(f"unknown scene(s) {unknown}; the suite has {known}")
+        if self.only:
+            scenes = [s for s in scenes if s.name in self.only]
+        self.out.mkdir(parents=True, exist_ok=True)
+        table = Table(title=f"NEO-Sim {self.profile} (seed {self.seed}) -> {self.out}")
+        for col in ("scene", "kind", "setup", "scans", "objects", "seconds", "MB"):
+            table.add_column(col)
+        t0 = time.perf_counter()
+        rows = []
+        for spec in scenes:
+            target = self.out / spec.name
+            if (target / "scene.json").is_file() and not self.overwrite:
+                console.print(f"[dim]{spec.name}: exists, skipped (--overwrite to regenerate)[/]")
+                summary = json.loads((target / "scene.json").read_text())
+                summary["seconds"] = float("nan")
+            else:
+                summary = simulate_scene(spec, target, overwrite=self.overwrite)
+            size = _dir_size_mb(target)
+            rows.append({"name": spec.name, "kind": spec.kind, "setup": spec.setup.name,
+                         "scans": summary["scans"], "seconds": summary["seconds"], "size_mb": round(size, 2)})
+            table.add_row(spec.name, spec.kind, spec.setup.name, " ".join(summary["scans"]),
+                          str(len(spec.objects)), f"{summary['seconds']:.1f}", f"{size:.1f}")
+        total_s = time.perf_counter() - t0
+        atomic_write_json(self.out / "suite.json", {"profile": self.profile, "seed": self.seed, "scenes": rows})
+        console.print(table)
+        console.print(f"total {total_s:.1f} s, {_dir_size_mb(self.out):.1f} MB")

@@ -1,0 +1,56 @@
+"""Image, depth and label file readers shared by the parsers."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import imageio.v3 as iio
+import numpy as np
+
+from neoedit.errors import DataError
+
+
+def _read(path: Path, what: str) -> np.ndarray:
+    if not path.is_file():
+        raise DataError(f"{what} not found: {path}")
+    try:
+        return np.asarray(iio.imread(path))
+    except Exception as e:  # imageio raises many types for corrupt files
+        raise DataError(f"cannot read {what} {path}: {e}") from e
+
+
+def read_rgb(path: Path, background_rgb: tuple[float, float, float]) -> np.ndarray:
+    """(H, W, 3) uint8; an alpha channel is composited over ``background_rgb`` (in [0,1])."""
+    img = _read(path, "image")
+    if img.ndim == 2:
+        img = np.repeat(img[..., None], 3, axis=-1)
+    if img.dtype == np.uint16:
+        img = (img / 257.0).round().astype(np.uint8)
+    if img.dtype != np.uint8:
+        raise DataError(f"image {path}: unsupported pixel type {img.dtype}")
+    if img.shape[-1] == 4:
+        alpha = img[..., 3:4].astype(np.float32) / 255.0
+        bg = np.asarray(background_rgb, np.float32) * 255.0
+        img = (img[..., :3].astype(np.float32) * alpha + bg * (1.0 - alpha)).round().astype(np.uint8)
+    return img[..., :3]
+
+
+def read_depth_m(path: Path, unit_scale_m: float) -> np.ndarray:
+    """(H, W) float32 metres; ``.npy`` files are read as metres, images are scaled by ``unit_scale_m``."""
+    if path.suffix == ".npy":
+        if not path.is_file():
+            raise DataError(f"depth not found: {path}")
+        depth = np.load(path).astype(np.float32)
+    else:
+        depth = _read(path, "depth").astype(np.float32) * unit_scale_m
+    if depth.ndim == 3:
+        depth = depth[..., 0]
+    return depth
+
+
+def read_label(path: Path, what: str) -> np.ndarray:
+    """(H, W) integer label image (first channel if several)."""
+    lab = _read(path, what)
+    if lab.ndim == 3:
+        lab = lab[..., 0]
+    return lab.astype(np.int32)

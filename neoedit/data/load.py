@@ -1,0 +1,26 @@
+"""Pick the parser for a dataset path."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from neoedit.data.blender import load_blender
+from neoedit.data.nerfstudio import load_nerfstudio
+from neoedit.data.scene_data import SceneData
+from neoedit.errors import DataError
+
+
+def load_scene_data(path: Path) -> SceneData:
+    """Load a nerfstudio (``transforms.json``) or Blender (``transforms_train.json``) dataset."""
+    path = Path(path)
+    if path.is_file() and path.name.endswith(".json"):
+        return load_nerfstudio(path)
+    if (path / "transforms.json").is_file():
+        return load_nerfstudio(path)
+    if (path / "transforms_train.json").is_file():
+        return load_blender(path)
+    if not path.exists():
+        raise DataError(f"dataset not found: {path}")
+    raise DataError(
+        f"{path}: no transforms.json (nerfstudio) or transforms_train.json (Blender) found"
+    )

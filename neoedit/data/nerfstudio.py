@@ -1,0 +1,160 @@
+"""Parser for nerfstudio ``transforms.json`` datasets.
+
+Supported keys: global or per-frame ``fl_x, fl_y, cx, cy, w, h``; per frame ``file_path``,
+``transform_matrix`` (camera-to-world, OpenGL), optional ``depth_file_path`` (uint16 PNG in
+``depth_unit_scale_factor`` metres, default 1e-3, or ``.npy`` in metres), ``mask_path``
+(nerfstudio loss mask, non-zero = use) and ``instance_path`` (neoedit: per-pixel instance
+id image, names in ``objects.json`` beside the transforms file). Splits come from
+``train_filenames`` / ``val_filenames`` / ``test_filenames``; without them every 8th frame
+is held out. neoedit extensions: ``background_color`` (RGB in [0,1]) and ``scene_aabb``
+(``[[xmin,ymin,zmin],[xmax,ymax,zmax]]`` in metres).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from neoedit.cameras import Cameras
+from neoedit.cameras.cameras import validate_pose
+from neoedit.data.images import read_depth_m, read_label, read_rgb
+from neoedit.data.scene_data import SceneData
+from neoedit.errors import DataError
+
+INTRINSIC_KEYS = ("fl_x", "fl_y", "cx", "cy", "w", "h")
+DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
+HOLDOUT_EVERY = 8
+
+
+def read_json(path: Path) -> Any:
+    if not path.is_file():
+        raise DataError(f"file not found: {path}")
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError as e:
+        raise DataError(f"{path} is not valid JSON: {e}") from e
+
+
+def _number(d: dict[str, Any], key: str, where: str) -> float:
+    value = d.get(key)
+    if not isinstance(value, (int, float)) or isinstance(value, bool) or not np.isfinite(value):
+        raise DataError(f"{where}: '{key}' must be a finite number, got {value!r}")
+    return float(value)
+
+
+def _intrinsics(meta: dict[str, Any], frame: dict[str, Any], where: str) -> list[float]:
+    values = []
+    for key in INTRINSIC_KEYS:
+        source = frame if key in frame else meta
+        if key not in source:
+            raise DataError(f"{where}: missing intrinsic '{key}' (neither in the frame nor global)")
+        values.append(_number(source, key, where))
+    for key in DISTORTION_KEYS:
+        source = frame if key in frame else meta
+        if abs(float(source.get(key, 0.0))) > 1e-12:
+            raise DataError(f"{where}: lens distortion ('{key}') is not supported; undistort the images first")
+    return values
+
+
+def _split_indices(meta: dict[str, Any], file_paths: list[str], path: Path) -> dict[str, np.ndarray]:
+    n = len(file_paths)
+    norm = {Path(p).as_posix().removeprefix("./"): i for i, p in enumerate(file_paths)}
+    split: dict[str, np.ndarray] = {}
+    for name, key in (("train", "train_filenames"), ("val", "val_filenames"), ("test", "test_filenames")):
+        if key not in meta:
+            continue
+        idx = []
+        for f in meta[key]:
+            k = Path(f).as_posix().removeprefix("./")
+            if k not in norm:
+                raise DataError(f"{path}: '{key}' lists {f!r}, which is not a frame's file_path")
+            idx.append(norm[k])
+        split[name] = np.asarray(sorted(idx), dtype=np.int64)
+    if "train" not in split:
+        held = np.arange(0, n, HOLDOUT_EVERY) if n >= HOLDOUT_EVERY else np.empty(0, np.int64)
+        split["train"] = np.setdiff1d(np.arange(n), held)
+        split.setdefault("test", held)
+    if "test" not in split:
+        split["test"] = split.get("val", np.empty(0, np.int64))
+    if len(split["train"]) == 0:
+        raise DataError(f"{path}: no training frames")
+    return split
+
+
+def load_nerfstudio(path: Path, background_rgb: tuple[float, float, float] | None = None) -> SceneData:
+    """Load a nerfstudio dataset from a ``transforms.json`` file or the folder holding it."""
+    path = Path(path)
+    tf_path = path / "transforms.json" if path.is_dir() else path
+    root = tf_path.parent
+    meta = read_json(tf_path)
+    if not isinstance(meta, dict) or not isinstance(meta.get("frames"), list) or not meta["frames"]:
+        raise DataError(f"{tf_path}: needs a non-empty 'frames' list")
+    bg = background_rgb or tuple(meta.get("background_color", (1.0, 1.0, 1.0)))
+    unit = float(meta.get("depth_unit_scale_factor", 1e-3))
+
+    file_paths: list[str] = []
+    images, poses, intr, depths, masks, labels = [], [], [], [], [], []
+    for i, frame in enumerate(meta["frames"]):
+        where = f"{tf_path} frame {i}"
+        if not isinstance(frame, dict) or "file_path" not in frame:
+            raise DataError(f"{where}: missing 'file_path'")
+        if "transform_matrix" not in frame:
+            raise DataError(f"{where}: missing 'transform_matrix'")
+        poses.append(validate_pose(np.asarray(frame["transform_matrix"], dtype=np.float64), where))
+        intr.append(_intrinsics(meta, frame, where))
+        file_paths.append(str(frame["file_path"]))
+        img = read_rgb(root / frame["file_path"], bg)  # type: ignore[arg-type]
+        w, h = int(intr[-1][4]), int(intr[-1][5])
+        if img.shape[:2] != (h, w):
+            raise DataError(f"{where}: image is {img.shape[1]}x{img.shape[0]} but w,h say {w}x{h}")
+        images.append(img)
+        if "depth_file_path" in frame:
+            depths.append(read_depth_m(root / frame["depth_file_path"], unit))
+        if "mask_path" in frame:
+            masks.append(read_label(root / frame["mask_path"], "mask") > 0)
+        if "instance_path" in frame:
+            labels.append(read_label(root / frame["instance_path"], "instance image"))
+    sizes = {im.shape for im in images}
+    if len(sizes) != 1:
+        raise DataError(f"{tf_path}: all images must share one size, found {sorted(sizes)}")
+
+    def stack_optional(items: list[np.ndarray], what: str) -> np.ndarray | None:
+        if not items:
+            return None
+        if len(items) != len(images):
+            raise DataError(f"{tf_path}: '{what}' is given for {len(items)} of {len(images)} frames")
+        return np.stack(items)
+
+    k = np.asarray(intr)
+    cameras = Cameras(np.stack(poses), k[:, 0], k[:, 1], k[:, 2], k[:, 3], k[:, 4], k[:, 5])
+    names, objects = _instance_names(root)
+    aabb = meta.get("scene_aabb")
+    return SceneData(
+        root=root,
+        file_paths=file_paths,
+        images=np.stack(images),
+        cameras=cameras,
+        split=_split_indices(meta, file_paths, tf_path),
+        depth_m=stack_optional(depths, "depth_file_path"),
+        loss_mask=stack_optional(masks, "mask_path"),
+        instance_ids=stack_optional(labels, "instance_path"),
+        instance_names=names,
+        objects=objects,
+        background_rgb=bg,  # type: ignore[arg-type]
+        scene_aabb_m=None if aabb is None else np.asarray(aabb, dtype=np.float64).reshape(2, 3),
+    )
+
+
+def _instance_names(root: Path) -> tuple[dict[int, str], list[dict[str, Any]]]:
+    path = root / "objects.json"
+    if not path.is_file():
+        return {}, []
+    meta = read_json(path)
+    try:
+        names = {int(inst["id"]): str(inst["name"]) for inst in meta["instances"]}
+    except (KeyError, TypeError, ValueError) as e:
+        raise DataError(f"{path}: 'instances' must be a list of {{'id', 'name'}}") from e
+    return names, list(meta.get("objects", []))

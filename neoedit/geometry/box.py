@@ -1,0 +1,131 @@
+"""Oriented 3-D box with yaw about the vertical (z) axis: the paper's b = (c, theta).
+
+Serialised everywhere (objects.json, scene.json, ``neo query`` output) as
+``{"center": [x, y, z], "size": [sx, sy, sz], "yaw_deg": theta}`` in world metres.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import cv2
+import numpy as np
+
+from neoedit.errors import NeoError
+from neoedit.geometry.transforms import rot_z, wrap_deg, yaw_of_rotation
+
+
+@dataclass(frozen=True)
+class OrientedBox:
+    """Box of ``size_m`` (sx, sy, sz) centred at ``center_m``, rotated by ``yaw_deg`` about +z."""
+
+    center_m: tuple[float, float, float]
+    size_m: tuple[float, float, float]
+    yaw_deg: float = 0.0
+
+    def __post_init__(self) -> None:
+        if len(self.center_m) != 3 or len(self.size_m) != 3:
+            raise NeoError("box center and size need 3 values each")
+        if not all(np.isfinite(v) for v in (*self.center_m, *self.size_m, self.yaw_deg)):
+            raise NeoError(f"box has non-finite values: {self}")
+        if min(self.size_m) <= 0:
+            raise NeoError(f"box size must be positive, got {self.size_m}")
+
+    # -- serialisation -------------------------------------------------------------------
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "center": [round(float(v), 6) for v in self.center_m],
+            "size": [round(float(v), 6) for v in self.size_m],
+            "yaw_deg": round(float(self.yaw_deg), 4),
+        }
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> OrientedBox:
+        try:
+            center = tuple(float(v) for v in d["center"])
+            size = tuple(float(v) for v in d["size"])
+            yaw = float(d.get("yaw_deg", 0.0))
+        except (KeyError, TypeError, ValueError) as e:
+            raise NeoError(
+                f"bad box {dict(d)!r}: expected {{'center': [x,y,z], 'size': [sx,sy,sz], 'yaw_deg': deg}}"
+            ) from e
+        return cls(center, size, yaw)  # type: ignore[arg-type]
+
+    # -- geometry ------------------------------------------------------------------------
+    @property
+    def rotation(self) -> np.ndarray:
+        return rot_z(self.yaw_deg)
+
+    @property
+    def half_extents(self) -> np.ndarray:
+        return np.asarray(self.size_m, dtype=np.float64) / 2.0
+
+    @property
+    def volume_m3(self) -> float:
+        return float(np.prod(self.size_m))
+
+    def world_to_local(self, points: np.ndarray) -> np.ndarray:
+        """Points (N,3) world -> box frame (centre at origin, axes aligned)."""
+        return (np.asarray(points, dtype=np.float64) - np.asarray(self.center_m)) @ self.rotation
+
+    def contains(self, points: np.ndarray, margin_m: float = 0.0) -> np.ndarray:
+        """Boolean (N,) of points (N,3) inside the box grown by ``margin_m``."""
+        local = self.world_to_local(points)
+        return np.all(np.abs(local) <= self.half_extents + margin_m, axis=-1)
+
+    def corners(self) -> np.ndarray:
+        """(8,3) corners in world frame; index bits (x,y,z) -> sign (-,+)."""
+        signs = np.array([[(i >> 0) & 1, (i >> 1) & 1, (i >> 2) & 1] for i in range(8)]) * 2 - 1
+        return (signs * self.half_extents) @ self.rotation.T + np.asarray(self.center_m)
+
+    def transformed(self, transform: np.ndarray) -> OrientedBox:
+        """The box moved by a rigid (4,4) world transform whose rotation is about z."""
+        rot = transform[:3, :3]
+        center = rot @ np.asarray(self.center_m) + transform[:3, 3]
+        yaw = wrap_deg(self.yaw_deg + yaw_of_rotation(rot))
+        return OrientedBox(tuple(center.tolist()), self.size_m, yaw)  # type: ignore[arg-type]
+
+    @classmethod
+    def fit_to_points(cls, points: np.ndarray, z_min_m: float | None = None) -> OrientedBox:
+        """Tightest yaw-only box around points (N,3).
+
+        Yaw and footprint come from the minimum-area rectangle of the points projected on
+        the ground plane (OpenCV), height from their z range; ``z_min_m`` extends the box
+        down to a support surface.
+        """
+        pts = np.asarray(points, dtype=np.float64)
+        if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < 3:
+            raise NeoError("fitting a box needs at least 3 points (N,3)")
+        (cx, cy), (w, h), angle = cv2.minAreaRect(pts[:, :2].astype(np.float32))
+        z0 = float(pts[:, 2].min()) if z_min_m is None else min(float(pts[:, 2].min()), z_min_m)
+        z1 = float(pts[:, 2].max())
+        # Keep sx >= sy so the yaw is the direction of the long side, in (-90, 90].
+        yaw = float(angle)
+        if w < h:
+            w, h, yaw = h, w, yaw + 90.0
+        yaw = wrap_deg(yaw)
+        if yaw <= -90.0:
+            yaw += 180.0
+        elif yaw > 90.0:
+            yaw -= 180.0
+        eps = 1e-4
+        return cls(
+            (float(cx), float(cy), (z0 + z1) / 2),
+            (max(float(w), eps), max(float(h), eps), max(z1 - z0, eps)),
+            yaw,
+        )
+
+
+def box_iou_3d(a: OrientedBox, b: OrientedBox) -> float:
+    """3-D IoU of two yaw-only boxes: ground-plane polygon overlap times z overlap."""
+    pa = a.corners()[[0, 1, 3, 2], :2].astype(np.float32)
+    pb = b.corners()[[0, 1, 3, 2], :2].astype(np.float32)
+    area, _ = cv2.intersectConvexConvex(pa, pb)
+    za = (a.center_m[2] - a.size_m[2] / 2, a.center_m[2] + a.size_m[2] / 2)
+    zb = (b.center_m[2] - b.size_m[2] / 2, b.center_m[2] + b.size_m[2] / 2)
+    dz = max(0.0, min(za[1], zb[1]) - max(za[0], zb[0]))
+    inter = float(area) * dz
+    union = a.volume_m3 + b.volume_m3 - inter
+    return inter / union if union > 0 else 0.0

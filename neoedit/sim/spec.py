@@ -1,0 +1,204 @@
+"""Scene specifications as plain data (dataclasses, read from YAML/JSON with field-named errors).
+
+A scene = a setup (table, robot arm, lighting), objects with natural-language names and
+initial poses, a scan protocol (image size, trajectory) and an ordered list of actions.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import yaml
+from pydantic import ConfigDict, TypeAdapter, ValidationError
+
+from neoedit.errors import SpecError
+
+Vec3 = tuple[float, float, float]
+_FORBID_EXTRA = ConfigDict(extra="forbid")  # unknown keys in a spec are errors
+
+
+@dataclass
+class ObjectSpec:
+    """One object on the table."""
+
+    __pydantic_config__ = _FORBID_EXTRA
+
+    name: str
+    """Natural-language name, unique in the scene (e.g. "red mug"); queries use it."""
+    urdf: str
+    """``pybullet_data:REL`` (ships with pybullet), ``objects_dir:REL`` (a folder given with
+    ``--objects-dir``; a sub-folder means its ``model.urdf``) or a path relative to the spec file."""
+    position_m: Vec3 = (0.0, 0.0, 0.0)
+    """x, y on the table (world metres); z is a drop height above the table top."""
+    yaw_deg: float = 0.0
+    """Rotation about +z applied after ``rpy_deg``."""
+    rpy_deg: Vec3 = (0.0, 0.0, 0.0)
+    """Base orientation of the model (e.g. to stand a y-up mesh upright)."""
+    scale: float = 1.0
+    """Uniform scale passed to PyBullet (``globalScaling``)."""
+    rgba: tuple[float, float, float, float] | None = None
+    """Override colour; None keeps the model's own colour/texture."""
+
+
+@dataclass
+class SetupSpec:
+    """Table, fixed robot arm and lighting (the paper uses two robot setups)."""
+
+    __pydantic_config__ = _FORBID_EXTRA
+
+    name: str = "panda_wood"
+    table_urdf: str = "pybullet_data:table/table.urdf"
+    table_top_m: float = 0.625
+    """Height of the table top in the URDF's frame; the world origin is put on the table top."""
+    table_rgba: tuple[float, float, float, float] | None = None
+    robot_urdf: str = "pybullet_data:franka_panda/panda.urdf"
+    robot_base_m: Vec3 = (-0.62, 0.0, 0.0)
+    robot_yaw_deg: float = 0.0
+    robot_joints_rad: list[float] = field(
+        default_factory=lambda: [0.0, -1.2, 0.0, -2.6, 0.0, 1.6, 0.785, 0.02, 0.02]
+    )
+    light_direction: Vec3 = (0.4, 0.3, 1.0)
+    """Direction towards the light (world frame); lighting is fixed in the world."""
+    light_color: Vec3 = (1.0, 1.0, 1.0)
+    ambient: float = 0.55
+    diffuse: float = 0.45
+    specular: float = 0.0
+    shadows: bool = True
+    workspace_center_m: Vec3 = (0.0, 0.0, 0.04)
+    """Where the scan trajectory looks."""
+    workspace_half_extent_m: tuple[float, float] = (0.3, 0.25)
+    """Half size (x, y) of the area where objects are placed."""
+
+
+@dataclass
+class ScanSpec:
+    """How one scan is captured: a hemispherical spiral for training plus a held-out ring."""
+
+    __pydantic_config__ = _FORBID_EXTRA
+
+    width: int = 320
+    height: int = 240
+    fov_y_deg: float = 55.0
+    n_train: int = 96
+    n_eval: int = 12
+    radius_m: float = 0.75
+    elevation_min_deg: float = 25.0
+    elevation_max_deg: float = 70.0
+    turns: float = 3.0
+    """Number of sweeps across ``azimuth_range_deg`` (back and forth) while rising."""
+    azimuth_range_deg: tuple[float, float] = (-145.0, 145.0)
+    """Azimuths the camera visits (0 = +x; the robot stands at 180, so it is left out)."""
+    eval_elevation_deg: float = 42.0
+    eval_radius_m: float = 0.8
+    near_m: float = 0.05
+    far_m: float = 4.0
+
+
+@dataclass
+class ActionSpec:
+    """One manipulation: remove an object, or move it by a relative transform."""
+
+    __pydantic_config__ = _FORBID_EXTRA
+
+    type: Literal["remove", "move"]
+    object: str
+    """Name of the object (as in ``objects``)."""
+    translate_m: Vec3 = (0.0, 0.0, 0.0)
+    """World-frame translation of the object's box centre (move only)."""
+    yaw_deg: float = 0.0
+    """Rotation about the vertical axis through the object's box centre (move only)."""
+
+
+@dataclass
+class SceneSpec:
+    """A whole simulated scene: setup, objects, scan protocol and the actions to perform."""
+
+    __pydantic_config__ = _FORBID_EXTRA
+    name: str
+    objects: list[ObjectSpec]
+    actions: list[ActionSpec] = field(default_factory=list)
+    setup: SetupSpec = field(default_factory=SetupSpec)
+    scan: ScanSpec = field(default_factory=ScanSpec)
+    kind: Literal["removal", "pick_place", "assembly", "custom"] = "custom"
+    settle_s: float = 1.5
+    """Simulated seconds of physics after placing objects and after each action."""
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+_ADAPTER = TypeAdapter(SceneSpec)
+
+
+def _format_validation_error(err: ValidationError, source: str) -> str:
+    first = err.errors()[0]
+    loc = "".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in first["loc"]).lstrip(".")
+    loc = loc.replace(".SceneSpec", "").replace(".SetupSpec", "").replace(".ObjectSpec", "")
+    more = f" (and {err.error_count() - 1} more problems)" if err.error_count() > 1 else ""
+    return f"{source}: field '{loc or '<root>'}': {first['msg']}{more}"
+
+
+def scene_spec_from_dict(data: Any, source: str = "scene spec") -> SceneSpec:
+    """Validate plain data into a :class:`SceneSpec`; errors name the offending field."""
+    if isinstance(data, dict) and isinstance(data.get("setup"), str):
+        from neoedit.sim.catalog import SETUPS
+
+        if data["setup"] not in SETUPS:
+            raise SpecError(f"{source}: field 'setup': unknown preset {data['setup']!r}, choose from {sorted(SETUPS)}")
+        data = {**data, "setup": dataclasses.asdict(SETUPS[data["setup"]])}
+    try:
+        spec = _ADAPTER.validate_python(data)
+    except ValidationError as e:
+        raise SpecError(_format_validation_error(e, source)) from None
+    _check_semantics(spec, source)
+    return spec
+
+
+def _check_semantics(spec: SceneSpec, source: str) -> None:
+    names = [o.name for o in spec.objects]
+    if not spec.objects:
+        raise SpecError(f"{source}: field 'objects': a scene needs at least one object")
+    for i, name in enumerate(names):
+        if not name.strip():
+            raise SpecError(f"{source}: field 'objects[{i}].name': must not be empty")
+        if names.index(name) != i:
+            raise SpecError(f"{source}: field 'objects[{i}].name': duplicate name {name!r}")
+    for i, o in enumerate(spec.objects):
+        if o.scale <= 0:
+            raise SpecError(f"{source}: field 'objects[{i}].scale': must be > 0")
+    present = set(names)
+    for i, a in enumerate(spec.actions):
+        if a.object not in present:
+            raise SpecError(
+                f"{source}: field 'actions[{i}].object': {a.object!r} is not an object in the scene at that step"
+            )
+        if a.type == "remove":
+            present.discard(a.object)
+    s = spec.scan
+    if s.width < 8 or s.height < 8:
+        raise SpecError(f"{source}: field 'scan.width/height': images must be at least 8x8")
+    if s.n_train < 2:
+        raise SpecError(f"{source}: field 'scan.n_train': need at least 2 training views")
+    if not 0 < s.fov_y_deg < 170:
+        raise SpecError(f"{source}: field 'scan.fov_y_deg': must be in (0, 170)")
+    if not s.azimuth_range_deg[0] < s.azimuth_range_deg[1]:
+        raise SpecError(f"{source}: field 'scan.azimuth_range_deg': need min < max")
+    if not 0 < s.near_m < s.far_m:
+        raise SpecError(f"{source}: field 'scan.near_m/far_m': need 0 < near < far")
+
+
+def load_scene_spec(path: Path) -> SceneSpec:
+    """Read a scene spec from ``.yaml``/``.yml``/``.json``."""
+    path = Path(path)
+    if not path.is_file():
+        raise SpecError(f"scene spec not found: {path}")
+    text = path.read_text()
+    try:
+        data = json.loads(text) if path.suffix == ".json" else yaml.safe_load(text)
+    except (json.JSONDecodeError, yaml.YAMLError) as e:
+        raise SpecError(f"{path}: cannot parse: {e}") from None
+    return scene_spec_from_dict(data, source=str(path))
