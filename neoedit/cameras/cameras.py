@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from neoedit.errors import NeoError
+from neoedit.errors import DataError
 
 
 def look_at(eye_m: np.ndarray, target_m: np.ndarray, up: np.ndarray | None = None) -> np.ndarray:
@@ -46,9 +46,15 @@ class Cameras:
         self.camera_to_world = np.asarray(self.camera_to_world, dtype=np.float64).reshape(-1, 4, 4)
         n = len(self.camera_to_world)
         for name in ("fx", "fy", "cx", "cy"):
-            setattr(self, name, np.broadcast_to(np.asarray(getattr(self, name), np.float64), (n,)).copy())
+            setattr(
+                self,
+                name,
+                np.broadcast_to(np.asarray(getattr(self, name), np.float64), (n,)).copy(),
+            )
         for name in ("width", "height"):
-            setattr(self, name, np.broadcast_to(np.asarray(getattr(self, name), np.int64), (n,)).copy())
+            setattr(
+                self, name, np.broadcast_to(np.asarray(getattr(self, name), np.int64), (n,)).copy()
+            )
 
     def __len__(self) -> int:
         return len(self.camera_to_world)
@@ -56,8 +62,13 @@ class Cameras:
     def subset(self, indices: np.ndarray | list[int]) -> Cameras:
         idx = np.asarray(indices, dtype=np.int64)
         return Cameras(
-            self.camera_to_world[idx], self.fx[idx], self.fy[idx], self.cx[idx], self.cy[idx],
-            self.width[idx], self.height[idx],
+            self.camera_to_world[idx],
+            self.fx[idx],
+            self.fy[idx],
+            self.cx[idx],
+            self.cy[idx],
+            self.width[idx],
+            self.height[idx],
         )
 
     def intrinsics_matrix(self, i: int) -> np.ndarray:
@@ -94,14 +105,19 @@ class Cameras:
 
 def validate_pose(c2w: np.ndarray, where: str) -> np.ndarray:
     """Check a (4,4) camera-to-world matrix: finite, rigid, invertible. Returns it as float64."""
-    m = np.asarray(c2w, dtype=np.float64)
+    try:
+        m = np.asarray(c2w, dtype=np.float64)
+    except (TypeError, ValueError) as e:
+        raise DataError(f"{where}: transform_matrix is not a numeric matrix") from e
     if m.shape == (3, 4):
         m = np.vstack([m, [0, 0, 0, 1]])
     if m.shape != (4, 4):
-        raise NeoError(f"{where}: transform_matrix must be 4x4 (or 3x4), got shape {m.shape}")
+        raise DataError(f"{where}: transform_matrix must be 4x4 (or 3x4), got shape {m.shape}")
     if not np.all(np.isfinite(m)):
-        raise NeoError(f"{where}: transform_matrix has non-finite values")
+        raise DataError(f"{where}: transform_matrix has non-finite values")
     det = np.linalg.det(m[:3, :3])
     if abs(det) < 1e-6:
-        raise NeoError(f"{where}: transform_matrix is not invertible (det of rotation = {det:.3g})")
+        raise DataError(
+            f"{where}: transform_matrix is not invertible (det of rotation = {det:.3g})"
+        )
     return m

@@ -18,7 +18,9 @@ SimCommands = Annotated[
         Annotated[SimSceneCommand, tyro.conf.subcommand("scene")],
         Annotated[SimBenchmarkCommand, tyro.conf.subcommand("benchmark")],
     ],
-    tyro.conf.subcommand("sim", description="Simulated tabletop scans before/after manipulation (NEO-Sim)."),
+    tyro.conf.subcommand(
+        "sim", description="Simulated tabletop scans before/after manipulation (NEO-Sim)."
+    ),
 ]
 
 Commands = Union[  # noqa: UP007
@@ -29,7 +31,7 @@ Commands = Union[  # noqa: UP007
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``neo``; returns the exit status (0 ok, 2 bad input, 130 interrupted)."""
-    command = tyro.cli(Commands, prog="neo", args=argv)  # type: ignore[call-overload]
+    command = tyro.cli(Commands, prog="neo", args=argv)
     err = Console(stderr=True)
     try:
         command.run()

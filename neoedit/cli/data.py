@@ -24,11 +24,17 @@ class InfoCommand:
         c = Console()
         c.print(f"[bold]{d.root}[/]: {len(d)} frames of {d.width}x{d.height}")
         c.print("splits: " + ", ".join(f"{k}={len(v)}" for k, v in d.split.items()))
-        c.print(f"focal (px): {np.median(d.cameras.fx):.1f}; camera centres within "
-                f"{np.round(d.camera_aabb_m(), 3).tolist()} m")
-        c.print(f"depth: {'yes' if d.depth_m is not None else 'no'}; instance labels: "
-                f"{'yes' if d.instance_ids is not None else 'no'}; loss masks: {'yes' if d.loss_mask is not None else 'no'}")
+        c.print(
+            f"focal (px): {np.median(d.cameras.fx):.1f}; camera centres within "
+            f"{np.round(d.camera_aabb_m(), 3).tolist()} m"
+        )
+        c.print(
+            f"depth: {'yes' if d.depth_m is not None else 'no'}; instance labels: "
+            f"{'yes' if d.instance_ids is not None else 'no'}; loss masks: {'yes' if d.loss_mask is not None else 'no'}"
+        )
         if d.instance_names:
-            c.print("instances: " + ", ".join(f"{i}={n}" for i, n in sorted(d.instance_names.items())))
+            c.print(
+                "instances: " + ", ".join(f"{i}={n}" for i, n in sorted(d.instance_names.items()))
+            )
         for obj in d.objects:
             c.print(f"  {obj['name']}: box {obj['box']}")

@@ -42,8 +42,10 @@ class SimSceneCommand:
 
         spec = load_scene_spec(self.spec)
         summary = simulate_scene(spec, self.out, self.spec.parent, self.objects_dir, self.overwrite)
-        console.print(f"wrote {self.out} ({', '.join(summary['scans'])}) in {summary['seconds']:.1f} s, "
-                      f"{_dir_size_mb(self.out):.1f} MB")
+        console.print(
+            f"wrote {self.out} ({', '.join(summary['scans'])}) in {summary['seconds']:.1f} s, "
+            f"{_dir_size_mb(self.out):.1f} MB"
+        )
 
 
 @dataclass
@@ -86,11 +88,28 @@ class SimBenchmarkCommand:
             else:
                 summary = simulate_scene(spec, target, overwrite=self.overwrite)
             size = _dir_size_mb(target)
-            rows.append({"name": spec.name, "kind": spec.kind, "setup": spec.setup.name,
-                         "scans": summary["scans"], "seconds": summary["seconds"], "size_mb": round(size, 2)})
-            table.add_row(spec.name, spec.kind, spec.setup.name, " ".join(summary["scans"]),
-                          str(len(spec.objects)), f"{summary['seconds']:.1f}", f"{size:.1f}")
+            rows.append(
+                {
+                    "name": spec.name,
+                    "kind": spec.kind,
+                    "setup": spec.setup.name,
+                    "scans": summary["scans"],
+                    "seconds": summary["seconds"],
+                    "size_mb": round(size, 2),
+                }
+            )
+            table.add_row(
+                spec.name,
+                spec.kind,
+                spec.setup.name,
+                " ".join(summary["scans"]),
+                str(len(spec.objects)),
+                f"{summary['seconds']:.1f}",
+                f"{size:.1f}",
+            )
         total_s = time.perf_counter() - t0
-        atomic_write_json(self.out / "suite.json", {"profile": self.profile, "seed": self.seed, "scenes": rows})
+        atomic_write_json(
+            self.out / "suite.json", {"profile": self.profile, "seed": self.seed, "scenes": rows}
+        )
         console.print(table)
         console.print(f"total {total_s:.1f} s, {_dir_size_mb(self.out):.1f} MB")

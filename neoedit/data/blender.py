@@ -21,7 +21,9 @@ from neoedit.errors import DataError
 SPLITS = ("train", "val", "test")
 
 
-def load_blender(root: Path, background_rgb: tuple[float, float, float] = (1.0, 1.0, 1.0)) -> SceneData:
+def load_blender(
+    root: Path, background_rgb: tuple[float, float, float] = (1.0, 1.0, 1.0)
+) -> SceneData:
     root = Path(root)
     file_paths: list[str] = []
     images, poses, focal = [], [], []

@@ -31,7 +31,9 @@ def read_rgb(path: Path, background_rgb: tuple[float, float, float]) -> np.ndarr
     if img.shape[-1] == 4:
         alpha = img[..., 3:4].astype(np.float32) / 255.0
         bg = np.asarray(background_rgb, np.float32) * 255.0
-        img = (img[..., :3].astype(np.float32) * alpha + bg * (1.0 - alpha)).round().astype(np.uint8)
+        img = (
+            (img[..., :3].astype(np.float32) * alpha + bg * (1.0 - alpha)).round().astype(np.uint8)
+        )
     return img[..., :3]
 
 

@@ -55,15 +55,23 @@ def _intrinsics(meta: dict[str, Any], frame: dict[str, Any], where: str) -> list
     for key in DISTORTION_KEYS:
         source = frame if key in frame else meta
         if abs(float(source.get(key, 0.0))) > 1e-12:
-            raise DataError(f"{where}: lens distortion ('{key}') is not supported; undistort the images first")
+            raise DataError(
+                f"{where}: lens distortion ('{key}') is not supported; undistort the images first"
+            )
     return values
 
 
-def _split_indices(meta: dict[str, Any], file_paths: list[str], path: Path) -> dict[str, np.ndarray]:
+def _split_indices(
+    meta: dict[str, Any], file_paths: list[str], path: Path
+) -> dict[str, np.ndarray]:
     n = len(file_paths)
     norm = {Path(p).as_posix().removeprefix("./"): i for i, p in enumerate(file_paths)}
     split: dict[str, np.ndarray] = {}
-    for name, key in (("train", "train_filenames"), ("val", "val_filenames"), ("test", "test_filenames")):
+    for name, key in (
+        ("train", "train_filenames"),
+        ("val", "val_filenames"),
+        ("test", "test_filenames"),
+    ):
         if key not in meta:
             continue
         idx = []
@@ -84,7 +92,9 @@ def _split_indices(meta: dict[str, Any], file_paths: list[str], path: Path) -> d
     return split
 
 
-def load_nerfstudio(path: Path, background_rgb: tuple[float, float, float] | None = None) -> SceneData:
+def load_nerfstudio(
+    path: Path, background_rgb: tuple[float, float, float] | None = None
+) -> SceneData:
     """Load a nerfstudio dataset from a ``transforms.json`` file or the folder holding it."""
     path = Path(path)
     tf_path = path / "transforms.json" if path.is_dir() else path
@@ -106,7 +116,7 @@ def load_nerfstudio(path: Path, background_rgb: tuple[float, float, float] | Non
         poses.append(validate_pose(np.asarray(frame["transform_matrix"], dtype=np.float64), where))
         intr.append(_intrinsics(meta, frame, where))
         file_paths.append(str(frame["file_path"]))
-        img = read_rgb(root / frame["file_path"], bg)  # type: ignore[arg-type]
+        img = read_rgb(root / frame["file_path"], bg)
         w, h = int(intr[-1][4]), int(intr[-1][5])
         if img.shape[:2] != (h, w):
             raise DataError(f"{where}: image is {img.shape[1]}x{img.shape[0]} but w,h say {w}x{h}")
@@ -125,7 +135,9 @@ def load_nerfstudio(path: Path, background_rgb: tuple[float, float, float] | Non
         if not items:
             return None
         if len(items) != len(images):
-            raise DataError(f"{tf_path}: '{what}' is given for {len(items)} of {len(images)} frames")
+            raise DataError(
+                f"{tf_path}: '{what}' is given for {len(items)} of {len(images)} frames"
+            )
         return np.stack(items)
 
     k = np.asarray(intr)
@@ -143,7 +155,7 @@ def load_nerfstudio(path: Path, background_rgb: tuple[float, float, float] | Non
         instance_ids=stack_optional(labels, "instance_path"),
         instance_names=names,
         objects=objects,
-        background_rgb=bg,  # type: ignore[arg-type]
+        background_rgb=bg,
         scene_aabb_m=None if aabb is None else np.asarray(aabb, dtype=np.float64).reshape(2, 3),
     )
 

@@ -17,6 +17,11 @@ from neoedit.errors import NeoError
 from neoedit.geometry.transforms import rot_z, wrap_deg, yaw_of_rotation
 
 
+def _vec3(values: Any) -> tuple[float, float, float]:
+    x, y, z = (float(v) for v in values)
+    return (x, y, z)
+
+
 @dataclass(frozen=True)
 class OrientedBox:
     """Box of ``size_m`` (sx, sy, sz) centred at ``center_m``, rotated by ``yaw_deg`` about +z."""
@@ -44,14 +49,14 @@ class OrientedBox:
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> OrientedBox:
         try:
-            center = tuple(float(v) for v in d["center"])
-            size = tuple(float(v) for v in d["size"])
+            center = _vec3(d["center"])
+            size = _vec3(d["size"])
             yaw = float(d.get("yaw_deg", 0.0))
         except (KeyError, TypeError, ValueError) as e:
             raise NeoError(
                 f"bad box {dict(d)!r}: expected {{'center': [x,y,z], 'size': [sx,sy,sz], 'yaw_deg': deg}}"
             ) from e
-        return cls(center, size, yaw)  # type: ignore[arg-type]
+        return cls(center, size, yaw)
 
     # -- geometry ------------------------------------------------------------------------
     @property
@@ -85,7 +90,18 @@ class OrientedBox:
         rot = transform[:3, :3]
         center = rot @ np.asarray(self.center_m) + transform[:3, 3]
         yaw = wrap_deg(self.yaw_deg + yaw_of_rotation(rot))
-        return OrientedBox(tuple(center.tolist()), self.size_m, yaw)  # type: ignore[arg-type]
+        return OrientedBox(tuple(center.tolist()), self.size_m, yaw)
+
+    @classmethod
+    def fit_with_yaw(cls, points: np.ndarray, yaw_deg: float) -> OrientedBox:
+        """Tightest box of a given yaw around points (N,3)."""
+        rot = rot_z(yaw_deg)
+        local = np.asarray(points, dtype=np.float64) @ rot  # into the yaw-aligned frame
+        lo, hi = local.min(0), local.max(0)
+        center = rot @ ((lo + hi) / 2)
+        return cls(
+            tuple(center.tolist()), tuple(np.maximum(hi - lo, 1e-4).tolist()), wrap_deg(yaw_deg)
+        )
 
     @classmethod
     def fit_to_points(cls, points: np.ndarray, z_min_m: float | None = None) -> OrientedBox:
@@ -118,14 +134,42 @@ class OrientedBox:
         )
 
 
+def _clip_convex(subject: np.ndarray, clip: np.ndarray) -> np.ndarray:
+    """Sutherland-Hodgman: the part of convex polygon ``subject`` (K,2) inside convex ``clip``
+    (M,2), both counter-clockwise."""
+    out = subject
+    for k in range(len(clip)):
+        if len(out) == 0:
+            break
+        a, b = clip[k], clip[(k + 1) % len(clip)]
+        edge = b - a
+        side = edge[0] * (out[:, 1] - a[1]) - edge[1] * (out[:, 0] - a[0])  # >= 0: inside
+        nxt = []
+        for i in range(len(out)):
+            p, q, sp, sq = out[i], out[(i + 1) % len(out)], side[i], side[(i + 1) % len(out)]
+            if sp >= 0:
+                nxt.append(p)
+            if (sp >= 0) != (sq >= 0):
+                nxt.append(p + (q - p) * (sp / (sp - sq)))
+        out = np.asarray(nxt).reshape(-1, 2)
+    return out
+
+
+def _polygon_area(poly: np.ndarray) -> float:
+    if len(poly) < 3:
+        return 0.0
+    x, y = poly[:, 0], poly[:, 1]
+    return 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
+
+
 def box_iou_3d(a: OrientedBox, b: OrientedBox) -> float:
     """3-D IoU of two yaw-only boxes: ground-plane polygon overlap times z overlap."""
-    pa = a.corners()[[0, 1, 3, 2], :2].astype(np.float32)
-    pb = b.corners()[[0, 1, 3, 2], :2].astype(np.float32)
-    area, _ = cv2.intersectConvexConvex(pa, pb)
+    pa = a.corners()[[0, 1, 3, 2], :2]  # counter-clockwise footprint
+    pb = b.corners()[[0, 1, 3, 2], :2]
+    area = _polygon_area(_clip_convex(pa, pb))
     za = (a.center_m[2] - a.size_m[2] / 2, a.center_m[2] + a.size_m[2] / 2)
     zb = (b.center_m[2] - b.size_m[2] / 2, b.center_m[2] + b.size_m[2] / 2)
     dz = max(0.0, min(za[1], zb[1]) - max(za[0], zb[0]))
-    inter = float(area) * dz
+    inter = area * dz
     union = a.volume_m3 + b.volume_m3 - inter
     return inter / union if union > 0 else 0.0

@@ -19,18 +19,28 @@ DEPTH_UNIT_M = 1e-3  # depth PNGs are uint16 millimetres (nerfstudio's default s
 BACKGROUND_RGB = (1.0, 1.0, 1.0)  # PyBullet's tiny renderer clears to white
 
 
-def render_view(world: SimWorld, c2w: np.ndarray, scan: ScanSpec) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def render_view(
+    world: SimWorld, c2w: np.ndarray, scan: ScanSpec
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Render one view -> RGB (H,W,3) uint8, z-depth (H,W) float32 metres (0 = nothing hit),
     instance ids (H,W) uint8."""
     setup = world.spec.setup
     view = np.linalg.inv(c2w).T.reshape(-1).tolist()  # column-major world->camera (OpenGL)
-    proj = pb.computeProjectionMatrixFOV(scan.fov_y_deg, scan.width / scan.height, scan.near_m, scan.far_m)
+    proj = pb.computeProjectionMatrixFOV(
+        scan.fov_y_deg, scan.width / scan.height, scan.near_m, scan.far_m
+    )
     _, _, rgba, zbuf, seg = pb.getCameraImage(
-        scan.width, scan.height, view, proj,
+        scan.width,
+        scan.height,
+        view,
+        proj,
         renderer=pb.ER_TINY_RENDERER,
-        lightDirection=list(setup.light_direction), lightColor=list(setup.light_color),
-        lightAmbientCoeff=setup.ambient, lightDiffuseCoeff=setup.diffuse,
-        lightSpecularCoeff=setup.specular, shadow=int(setup.shadows),
+        lightDirection=list(setup.light_direction),
+        lightColor=list(setup.light_color),
+        lightAmbientCoeff=setup.ambient,
+        lightDiffuseCoeff=setup.diffuse,
+        lightSpecularCoeff=setup.specular,
+        shadow=int(setup.shadows),
         physicsClientId=world.client,
     )
     rgb = np.asarray(rgba, dtype=np.uint8).reshape(scan.height, scan.width, 4)[..., :3]
@@ -61,30 +71,43 @@ def objects_metadata(world: SimWorld) -> dict[str, Any]:
             continue
         iid = world.instance_ids[spec.name]
         instances.append({"id": iid, "name": spec.name, "kind": "object"})
-        objects.append({
-            "id": iid,
-            "name": spec.name,
-            "urdf": spec.urdf,
-            "pose": np.round(world.object_pose(spec.name), 6).tolist(),
-            "box": world.object_box(spec.name).to_dict(),
-        })
+        objects.append(
+            {
+                "id": iid,
+                "name": spec.name,
+                "urdf": spec.urdf,
+                "pose": np.round(world.object_pose(spec.name), 6).tolist(),
+                "box": world.object_box(spec.name).to_dict(),
+            }
+        )
     return {"instances": instances, "objects": objects}
 
 
-def capture_scan(world: SimWorld, scan: ScanSpec, out_dir: Path, label: str = "scan") -> dict[str, Any]:
+def capture_scan(
+    world: SimWorld, scan: ScanSpec, out_dir: Path, label: str = "scan"
+) -> dict[str, Any]:
     """Render the training spiral and the held-out ring into ``out_dir`` (nerfstudio format)."""
     center = np.asarray(world.spec.setup.workspace_center_m)
     poses = np.concatenate([spiral_poses(scan, center), eval_ring_poses(scan, center)])
     n_train = scan.n_train
-    frames, train_files, test_files, thumbs, names = [], [], [], [], []
+    frames: list[dict[str, Any]] = []
+    train_files: list[str] = []
+    test_files: list[str] = []
+    thumbs: list[np.ndarray] = []
+    names: list[str] = []
     for i in track(range(len(poses)), f"render {label}"):
         split = "train" if i < n_train else "eval"
         stem = f"{split}_{i if i < n_train else i - n_train:04d}"
         rgb, depth, labels = render_view(world, poses[i], scan)
-        rel = {"file_path": f"images/{stem}.png", "depth_file_path": f"depth/{stem}.png",
-               "instance_path": f"instances/{stem}.png"}
+        rel = {
+            "file_path": f"images/{stem}.png",
+            "depth_file_path": f"depth/{stem}.png",
+            "instance_path": f"instances/{stem}.png",
+        }
         write_png(out_dir / rel["file_path"], rgb)
-        write_png(out_dir / rel["depth_file_path"], np.round(depth / DEPTH_UNIT_M).astype(np.uint16))
+        write_png(
+            out_dir / rel["depth_file_path"], np.round(depth / DEPTH_UNIT_M).astype(np.uint16)
+        )
         write_png(out_dir / rel["instance_path"], labels)
         frames.append({**rel, "transform_matrix": np.round(poses[i], 8).tolist()})
         (train_files if split == "train" else test_files).append(rel["file_path"])

@@ -33,15 +33,28 @@ CATALOG: dict[str, ObjectSpec] = {
     o.name: o
     for o in [
         ObjectSpec("red mug", "pybullet_data:objects/mug.urdf", scale=0.9),
-        ObjectSpec("yellow rubber duck", "pybullet_data:duck_vhacd.urdf", rpy_deg=(90.0, 0.0, 0.0), scale=1.1),
+        ObjectSpec(
+            "yellow rubber duck",
+            "pybullet_data:duck_vhacd.urdf",
+            rpy_deg=(90.0, 0.0, 0.0),
+            scale=1.1,
+        ),
         ObjectSpec("yellow lego brick", "pybullet_data:lego/lego.urdf", scale=1.8),
         ObjectSpec("soccer ball", "pybullet_data:soccerball.urdf", scale=0.09),
         ObjectSpec("wooden jenga block", "pybullet_data:jenga/jenga.urdf", scale=0.7),
-        ObjectSpec("pink teddy bear", "pybullet_data:teddy_vhacd.urdf", rpy_deg=(90.0, 0.0, 0.0), scale=1.0),
+        ObjectSpec(
+            "pink teddy bear", "pybullet_data:teddy_vhacd.urdf", rpy_deg=(90.0, 0.0, 0.0), scale=1.0
+        ),
         ObjectSpec("red ball", "pybullet_data:sphere2red.urdf", scale=0.07),
-        ObjectSpec("green cube", "pybullet_data:cube_small.urdf", scale=1.0, rgba=(0.15, 0.65, 0.25, 1.0)),
-        ObjectSpec("blue cube", "pybullet_data:cube_small.urdf", scale=1.0, rgba=(0.15, 0.3, 0.85, 1.0)),
-        ObjectSpec("orange cube", "pybullet_data:cube_small.urdf", scale=1.0, rgba=(0.95, 0.5, 0.1, 1.0)),
+        ObjectSpec(
+            "green cube", "pybullet_data:cube_small.urdf", scale=1.0, rgba=(0.15, 0.65, 0.25, 1.0)
+        ),
+        ObjectSpec(
+            "blue cube", "pybullet_data:cube_small.urdf", scale=1.0, rgba=(0.15, 0.3, 0.85, 1.0)
+        ),
+        ObjectSpec(
+            "orange cube", "pybullet_data:cube_small.urdf", scale=1.0, rgba=(0.95, 0.5, 0.1, 1.0)
+        ),
     ]
 }
 

@@ -148,7 +148,9 @@ def scene_spec_from_dict(data: Any, source: str = "scene spec") -> SceneSpec:
         from neoedit.sim.catalog import SETUPS
 
         if data["setup"] not in SETUPS:
-            raise SpecError(f"{source}: field 'setup': unknown preset {data['setup']!r}, choose from {sorted(SETUPS)}")
+            raise SpecError(
+                f"{source}: field 'setup': unknown preset {data['setup']!r}, choose from {sorted(SETUPS)}"
+            )
         data = {**data, "setup": dataclasses.asdict(SETUPS[data["setup"]])}
     try:
         spec = _ADAPTER.validate_python(data)

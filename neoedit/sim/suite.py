@@ -42,8 +42,13 @@ PICK_PLACE = [
 ]
 
 
-def _place(rng: np.random.Generator, n: int, half_extent: tuple[float, float],
-           reserved: list[np.ndarray], min_dist_m: float = 0.13) -> list[np.ndarray]:
+def _place(
+    rng: np.random.Generator,
+    n: int,
+    half_extent: tuple[float, float],
+    reserved: list[np.ndarray],
+    min_dist_m: float = 0.13,
+) -> list[np.ndarray]:
     """Rejection-sample n (x, y) positions at least ``min_dist_m`` from each other and the reserved ones."""
     out: list[np.ndarray] = []
     hx, hy = half_extent
@@ -59,7 +64,9 @@ def _place(rng: np.random.Generator, n: int, half_extent: tuple[float, float],
 
 
 def _obj(name: str, xy: np.ndarray, rng: np.random.Generator) -> ObjectSpec:
-    return catalog_object(name, round(float(xy[0]), 4), round(float(xy[1]), 4), round(float(rng.uniform(-90, 90)), 2))
+    return catalog_object(
+        name, round(float(xy[0]), 4), round(float(xy[1]), 4), round(float(rng.uniform(-90, 90)), 2)
+    )
 
 
 def benchmark_scenes(profile: Profile = "standard", seed: int = 0) -> list[SceneSpec]:
@@ -72,8 +79,17 @@ def benchmark_scenes(profile: Profile = "standard", seed: int = 0) -> list[Scene
         setup = SETUPS[setup_name]
         pos = _place(rng, 1 + len(others), setup.workspace_half_extent_m, [])
         objects = [_obj(n, p, rng) for n, p in zip([target, *others], pos, strict=True)]
-        scenes.append(SceneSpec(f"removal_{k}", objects, [ActionSpec("remove", target)], setup, scan,
-                                kind="removal", settle_s=settle))
+        scenes.append(
+            SceneSpec(
+                f"removal_{k}",
+                objects,
+                [ActionSpec("remove", target)],
+                setup,
+                scan,
+                kind="removal",
+                settle_s=settle,
+            )
+        )
     for k, (target, others, setup_name, (dx, dy), yaw) in enumerate(PICK_PLACE, start=1):
         setup = SETUPS[setup_name]
         hx, hy = setup.workspace_half_extent_m
@@ -81,12 +97,21 @@ def benchmark_scenes(profile: Profile = "standard", seed: int = 0) -> list[Scene
         src = _place(rng, 1, (hx - abs(dx) / 2, hy - abs(dy) / 2), [])[0] - np.array([dx, dy]) / 2
         dst = src + np.array([dx, dy])
         pos = _place(rng, len(others), setup.workspace_half_extent_m, [src, dst], min_dist_m=0.14)
-        objects = [_obj(target, src, rng)] + [_obj(n, p, rng) for n, p in zip(others, pos, strict=True)]
+        objects = [_obj(target, src, rng)] + [
+            _obj(n, p, rng) for n, p in zip(others, pos, strict=True)
+        ]
         move = ActionSpec("move", target, (dx, dy, 0.0), yaw)
-        scenes.append(SceneSpec(f"pick_place_{k}", objects, [move], setup, scan, kind="pick_place",
-                                settle_s=settle))
+        scenes.append(
+            SceneSpec(
+                f"pick_place_{k}", objects, [move], setup, scan, kind="pick_place", settle_s=settle
+            )
+        )
     scenes.append(_assembly(rng, scan, settle))
     return scenes
+
+
+def _round3(v: tuple[float, float, float]) -> tuple[float, float, float]:
+    return (round(float(v[0]), 4), round(float(v[1]), 4), round(float(v[2]), 4))
 
 
 def _assembly(rng: np.random.Generator, scan: ScanSpec, settle: float) -> SceneSpec:
@@ -102,7 +127,9 @@ def _assembly(rng: np.random.Generator, scan: ScanSpec, settle: float) -> SceneS
         ActionSpec("move", "blue cube", (*(base - pos[1]), cube_m), 0.0),
         ActionSpec("move", "orange cube", (*(base - pos[2]), 2 * cube_m), 0.0),
         ActionSpec("move", "red mug", (*(base + np.array([0.0, 0.12]) - pos[3]), 0.0), 30.0),
-        ActionSpec("move", "yellow rubber duck", (*(base + np.array([0.0, -0.12]) - pos[4]), 0.0), -45.0),
+        ActionSpec(
+            "move", "yellow rubber duck", (*(base + np.array([0.0, -0.12]) - pos[4]), 0.0), -45.0
+        ),
     ]
-    actions = [dataclasses.replace(a, translate_m=tuple(round(float(v), 4) for v in a.translate_m)) for a in actions]
+    actions = [dataclasses.replace(a, translate_m=_round3(a.translate_m)) for a in actions]
     return SceneSpec("assembly", objects, actions, setup, scan, kind="assembly", settle_s=settle)

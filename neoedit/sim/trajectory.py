@@ -9,9 +9,13 @@ from neoedit.cameras import look_at
 from neoedit.sim.spec import ScanSpec
 
 
-def _on_sphere(center: np.ndarray, radius_m: float, azimuth_deg: float, elevation_deg: float) -> np.ndarray:
+def _on_sphere(
+    center: np.ndarray, radius_m: float, azimuth_deg: float, elevation_deg: float
+) -> np.ndarray:
     az, el = np.deg2rad(azimuth_deg), np.deg2rad(elevation_deg)
-    return center + radius_m * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+    return center + radius_m * np.array(
+        [np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)]
+    )
 
 
 def spiral_poses(scan: ScanSpec, center_m: np.ndarray) -> np.ndarray:
@@ -23,7 +27,12 @@ def spiral_poses(scan: ScanSpec, center_m: np.ndarray) -> np.ndarray:
     lo, hi = scan.azimuth_range_deg
     az = lo + (hi - lo) * triangle
     el = scan.elevation_min_deg + (scan.elevation_max_deg - scan.elevation_min_deg) * t
-    return np.stack([look_at(_on_sphere(center_m, scan.radius_m, a, e), center_m) for a, e in zip(az, el, strict=True)])
+    return np.stack(
+        [
+            look_at(_on_sphere(center_m, scan.radius_m, a, e), center_m)
+            for a, e in zip(az, el, strict=True)
+        ]
+    )
 
 
 def eval_ring_poses(scan: ScanSpec, center_m: np.ndarray) -> np.ndarray:
@@ -32,11 +41,22 @@ def eval_ring_poses(scan: ScanSpec, center_m: np.ndarray) -> np.ndarray:
         return np.zeros((0, 4, 4))
     lo, hi = scan.azimuth_range_deg
     az = lo + (np.arange(scan.n_eval) + 0.5) * (hi - lo) / scan.n_eval
-    return np.stack([look_at(_on_sphere(center_m, scan.eval_radius_m, a, scan.eval_elevation_deg), center_m) for a in az])
+    return np.stack(
+        [
+            look_at(_on_sphere(center_m, scan.eval_radius_m, a, scan.eval_elevation_deg), center_m)
+            for a in az
+        ]
+    )
 
 
 def intrinsics(scan: ScanSpec) -> dict[str, float]:
     """nerfstudio intrinsics (square pixels, principal point at the centre)."""
     fy = 0.5 * scan.height / np.tan(0.5 * np.deg2rad(scan.fov_y_deg))
-    return {"fl_x": float(fy), "fl_y": float(fy), "cx": scan.width / 2.0, "cy": scan.height / 2.0,
-            "w": scan.width, "h": scan.height}
+    return {
+        "fl_x": float(fy),
+        "fl_y": float(fy),
+        "cx": scan.width / 2.0,
+        "cy": scan.height / 2.0,
+        "w": scan.width,
+        "h": scan.height,
+    }

@@ -15,7 +15,7 @@ import pybullet_data
 from scipy.spatial.transform import Rotation
 
 from neoedit.errors import SpecError
-from neoedit.geometry import OrientedBox, rot_z
+from neoedit.geometry import OrientedBox, rot_z, yaw_of_rotation
 from neoedit.geometry.transforms import apply_transform, make_transform
 from neoedit.sim.spec import ObjectSpec, SceneSpec
 
@@ -45,7 +45,11 @@ def resolve_asset(ref: str, spec_dir: Path | None, objects_dir: Path | None) -> 
 
 @functools.lru_cache(maxsize=64)
 def _obj_vertices(path: str) -> np.ndarray:
-    verts = [line.split()[1:4] for line in Path(path).read_text(errors="ignore").splitlines() if line.startswith("v ")]
+    verts = [
+        line.split()[1:4]
+        for line in Path(path).read_text(errors="ignore").splitlines()
+        if line.startswith("v ")
+    ]
     return np.asarray(verts, dtype=np.float64)
 
 
@@ -57,7 +61,9 @@ def _pose_matrix(client: int, pos: tuple, orn: tuple) -> np.ndarray:
 class SimWorld:
     """Owns one PyBullet client (DIRECT, no display). Use as a context manager."""
 
-    def __init__(self, spec: SceneSpec, spec_dir: Path | None = None, objects_dir: Path | None = None):
+    def __init__(
+        self, spec: SceneSpec, spec_dir: Path | None = None, objects_dir: Path | None = None
+    ):
         self.spec = spec
         self.spec_dir, self.objects_dir = spec_dir, objects_dir
         self.client = pb.connect(pb.DIRECT)
@@ -78,26 +84,41 @@ class SimWorld:
             str(table), [0, 0, -setup.table_top_m], useFixedBase=True, physicsClientId=self.client
         )
         if setup.table_rgba is not None:
-            pb.changeVisualShape(self.table, -1, rgbaColor=setup.table_rgba, physicsClientId=self.client)
+            pb.changeVisualShape(
+                self.table, -1, rgbaColor=setup.table_rgba, physicsClientId=self.client
+            )
         robot = resolve_asset(setup.robot_urdf, self.spec_dir, self.objects_dir)
         orn = pb.getQuaternionFromEuler([0, 0, np.deg2rad(setup.robot_yaw_deg)])
         self.robot = pb.loadURDF(
-            str(robot), list(setup.robot_base_m), orn, useFixedBase=True, physicsClientId=self.client
+            str(robot),
+            list(setup.robot_base_m),
+            orn,
+            useFixedBase=True,
+            physicsClientId=self.client,
         )
         movable = [
-            j for j in range(pb.getNumJoints(self.robot, physicsClientId=self.client))
+            j
+            for j in range(pb.getNumJoints(self.robot, physicsClientId=self.client))
             if pb.getJointInfo(self.robot, j, physicsClientId=self.client)[2] != pb.JOINT_FIXED
         ]
         for j, q in zip(movable, setup.robot_joints_rad, strict=False):
             pb.resetJointState(self.robot, j, q, physicsClientId=self.client)
-            pb.setJointMotorControl2(self.robot, j, pb.POSITION_CONTROL, targetPosition=q, force=500,
-                                     physicsClientId=self.client)
+            pb.setJointMotorControl2(
+                self.robot,
+                j,
+                pb.POSITION_CONTROL,
+                targetPosition=q,
+                force=500,
+                physicsClientId=self.client,
+            )
 
     def _load_object(self, obj: ObjectSpec, instance_id: int) -> None:
         path = resolve_asset(obj.urdf, self.spec_dir, self.objects_dir)
         rot = rot_z(obj.yaw_deg) @ _euler_deg_to_matrix(obj.rpy_deg)
         orn = _matrix_to_quaternion(rot)
-        body = pb.loadURDF(str(path), [0, 0, 1.0], orn, globalScaling=obj.scale, physicsClientId=self.client)
+        body = pb.loadURDF(
+            str(path), [0, 0, 1.0], orn, globalScaling=obj.scale, physicsClientId=self.client
+        )
         if obj.rgba is not None:
             for vs in pb.getVisualShapeData(body, physicsClientId=self.client):
                 pb.changeVisualShape(body, vs[1], rgbaColor=obj.rgba, physicsClientId=self.client)
@@ -107,8 +128,14 @@ class SimWorld:
         x, y, drop = obj.position_m
         new_pos = [pos[0] + x - 0.0, pos[1] + y - 0.0, pos[2] - lo[2] + max(drop, 0.002)]
         pb.resetBasePositionAndOrientation(body, new_pos, orn, physicsClientId=self.client)
-        pb.changeDynamics(body, -1, lateralFriction=0.9, rollingFriction=0.002, spinningFriction=0.002,
-                          physicsClientId=self.client)
+        pb.changeDynamics(
+            body,
+            -1,
+            lateralFriction=0.9,
+            rollingFriction=0.002,
+            spinningFriction=0.002,
+            physicsClientId=self.client,
+        )
         self.bodies[obj.name] = body
         self.instance_ids[obj.name] = instance_id
 
@@ -131,13 +158,17 @@ class SimWorld:
     def object_pose(self, name: str) -> np.ndarray:
         """(4,4) world pose of the object's URDF link frame."""
         body = self.bodies[name]
-        com = _pose_matrix(self.client, *pb.getBasePositionAndOrientation(body, physicsClientId=self.client))
+        com = _pose_matrix(
+            self.client, *pb.getBasePositionAndOrientation(body, physicsClientId=self.client)
+        )
         info = pb.getDynamicsInfo(body, -1, physicsClientId=self.client)
         return com @ np.linalg.inv(_pose_matrix(self.client, info[3], info[4]))
 
     def object_vertices_world_for(self, body: int) -> np.ndarray:
         """(N,3) world points on the visual geometry of a body's base link."""
-        com = _pose_matrix(self.client, *pb.getBasePositionAndOrientation(body, physicsClientId=self.client))
+        com = _pose_matrix(
+            self.client, *pb.getBasePositionAndOrientation(body, physicsClientId=self.client)
+        )
         info = pb.getDynamicsInfo(body, -1, physicsClientId=self.client)
         link = com @ np.linalg.inv(_pose_matrix(self.client, info[3], info[4]))
         points = []
@@ -146,7 +177,11 @@ class SimWorld:
             if geom == pb.GEOM_MESH and mesh_file.endswith(".obj"):
                 local = _obj_vertices(mesh_file) * dims
             elif geom == pb.GEOM_BOX:
-                local = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) * dims / 2
+                local = (
+                    np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)])
+                    * dims
+                    / 2
+                )
             elif geom == pb.GEOM_SPHERE:
                 d = np.random.default_rng(0).normal(size=(512, 3))
                 local = d / np.linalg.norm(d, axis=1, keepdims=True) * dims[0]
@@ -157,8 +192,17 @@ class SimWorld:
         return np.concatenate(points)
 
     def object_box(self, name: str) -> OrientedBox:
-        """Tightest yaw-only box of the object's visual geometry (world frame)."""
-        return OrientedBox.fit_to_points(self.object_vertices_world_for(self.bodies[name]))
+        """Box of the object's visual geometry, aligned with the object's own heading.
+
+        The yaw follows the object (its rotation relative to its upright base orientation
+        ``rpy_deg``), so the box moves rigidly with the object; a tilted object still gets
+        a box that holds all of it.
+        """
+        spec = next(o for o in self.spec.objects if o.name == name)
+        relative = self.object_pose(name)[:3, :3] @ _euler_deg_to_matrix(spec.rpy_deg).T
+        return OrientedBox.fit_with_yaw(
+            self.object_vertices_world_for(self.bodies[name]), yaw_of_rotation(relative)
+        )
 
     def aabb_m(self) -> np.ndarray:
         """(2,3) bounds of everything in the world (table, robot, objects)."""
@@ -175,18 +219,29 @@ class SimWorld:
         self.instance_ids.pop(name)
         self.settle()
 
-    def move(self, name: str, translate_m: tuple[float, float, float], yaw_deg: float) -> np.ndarray:
+    def move(
+        self, name: str, translate_m: tuple[float, float, float], yaw_deg: float
+    ) -> np.ndarray:
         """Move an object (rotate about the vertical through its box centre, then translate),
         let it settle, and return the realised (4,4) world transform T (new pose = T @ old)."""
         body = self.bodies[name]
         before = self.object_pose(name)
         centre = np.asarray(self.object_box(name).center_m)
-        motion = make_transform(rot_z(yaw_deg), centre + np.asarray(translate_m) - rot_z(yaw_deg) @ centre)
-        motion[2, 3] += 0.003  # release just above the support so it does not start interpenetrating
-        com = _pose_matrix(self.client, *pb.getBasePositionAndOrientation(body, physicsClientId=self.client))
+        motion = make_transform(
+            rot_z(yaw_deg), centre + np.asarray(translate_m) - rot_z(yaw_deg) @ centre
+        )
+        motion[2, 3] += (
+            0.003  # release just above the support so it does not start interpenetrating
+        )
+        com = _pose_matrix(
+            self.client, *pb.getBasePositionAndOrientation(body, physicsClientId=self.client)
+        )
         target = motion @ com
         pb.resetBasePositionAndOrientation(
-            body, target[:3, 3].tolist(), _matrix_to_quaternion(target[:3, :3]), physicsClientId=self.client
+            body,
+            target[:3, 3].tolist(),
+            _matrix_to_quaternion(target[:3, :3]),
+            physicsClientId=self.client,
         )
         pb.resetBaseVelocity(body, [0, 0, 0], [0, 0, 0], physicsClientId=self.client)
         self.settle()

@@ -11,8 +11,12 @@ import numpy as np
 from neoedit.utils.io import write_png
 
 
-def tile_images(images: list[np.ndarray], cols: int | None = None, labels: list[str] | None = None,
-                pad_px: int = 2) -> np.ndarray:
+def tile_images(
+    images: list[np.ndarray],
+    cols: int | None = None,
+    labels: list[str] | None = None,
+    pad_px: int = 2,
+) -> np.ndarray:
     """Tile (H,W,3) uint8 images into one grid image (white padding, optional labels)."""
     if not images:
         raise ValueError("no images to tile")
@@ -26,15 +30,35 @@ def tile_images(images: list[np.ndarray], cols: int | None = None, labels: list[
         y, x = pad_px + r * (h + pad_px), pad_px + c * (w + pad_px)
         tile = np.ascontiguousarray(img[..., :3])
         if labels is not None:
-            cv2.putText(tile, labels[k], (3, int(14 * scale) + 2), cv2.FONT_HERSHEY_SIMPLEX, 0.45 * scale,
-                        (0, 0, 0), 2, cv2.LINE_AA)
-            cv2.putText(tile, labels[k], (3, int(14 * scale) + 2), cv2.FONT_HERSHEY_SIMPLEX, 0.45 * scale,
-                        (255, 255, 255), 1, cv2.LINE_AA)
+            cv2.putText(
+                tile,
+                labels[k],
+                (3, int(14 * scale) + 2),
+                cv2.FONT_HERSHEY_SIMPLEX,
+                0.45 * scale,
+                (0, 0, 0),
+                2,
+                cv2.LINE_AA,
+            )
+            cv2.putText(
+                tile,
+                labels[k],
+                (3, int(14 * scale) + 2),
+                cv2.FONT_HERSHEY_SIMPLEX,
+                0.45 * scale,
+                (255, 255, 255),
+                1,
+                cv2.LINE_AA,
+            )
         sheet[y : y + h, x : x + w] = tile
     return sheet
 
 
-def write_contact_sheet(path: Path, images: list[np.ndarray], labels: list[str], max_views: int = 24) -> None:
+def write_contact_sheet(
+    path: Path, images: list[np.ndarray], labels: list[str], max_views: int = 24
+) -> None:
     """Write a grid of at most ``max_views`` evenly chosen views."""
-    idx = np.unique(np.linspace(0, len(images) - 1, min(max_views, len(images))).round().astype(int))
+    idx = np.unique(
+        np.linspace(0, len(images) - 1, min(max_views, len(images))).round().astype(int)
+    )
     write_png(path, tile_images([images[i] for i in idx], labels=[labels[i] for i in idx]))

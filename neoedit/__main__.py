@@ -1,0 +1,3 @@
+from neoedit.cli import entry
+
+entry()

@@ -1,0 +1,1 @@
+"""Neural fields: hash-grid encoding and the radiance field built on it."""
