@@ -1,6 +1,6 @@
 """Time and size of the NEO-Sim suite generation.
 
-    python benchmarks/bench_sim.py --profile standard --out outputs/neosim_standard
+python benchmarks/bench_sim.py --profile standard --out outputs/neosim_standard
 """
 
 from __future__ import annotations
@@ -29,12 +29,18 @@ def main() -> None:
     n_images = 0
     for scene in suite["scenes"]:
         for scan in scene["scans"]:
-            n_images += len(json.loads((args.out / scene["name"] / scan / "transforms.json").read_text())["frames"])
+            n_images += len(
+                json.loads((args.out / scene["name"] / scan / "transforms.json").read_text())[
+                    "frames"
+                ]
+            )
     size_mb = sum(f.stat().st_size for f in args.out.rglob("*") if f.is_file()) / 1e6
     print(f"\ncommand: python {shlex.join(sys.argv)}")
     print(f"machine: {platform.processor() or platform.machine()}, {platform.system()}")
-    print(f"scenes: {len(suite['scenes'])}, scans: {sum(len(s['scans']) for s in suite['scenes'])}, "
-          f"frames: {n_images}, total {total_s:.1f} s, {size_mb:.1f} MB")
+    print(
+        f"scenes: {len(suite['scenes'])}, scans: {sum(len(s['scans']) for s in suite['scenes'])}, "
+        f"frames: {n_images}, total {total_s:.1f} s, {size_mb:.1f} MB"
+    )
 
 
 if __name__ == "__main__":

@@ -1,6 +1,6 @@
 """Regenerate docs/neosim.png from a standard NEO-Sim run.
 
-    python benchmarks/bench_sim.py --out outputs/neosim_standard && python docs/make_readme_figure.py
+python benchmarks/bench_sim.py --out outputs/neosim_standard && python docs/make_readme_figure.py
 """
 
 from pathlib import Path

@@ -8,7 +8,7 @@ import pytest
 
 from neoedit.cli import main
 
-VERBS = [["sim", "scene"], ["sim", "benchmark"], ["info"]]
+VERBS = [["sim", "scene"], ["sim", "benchmark"], ["info"], ["train"], ["render"], ["eval"]]
 
 
 @pytest.mark.parametrize("verb", VERBS)

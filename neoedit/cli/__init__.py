@@ -10,6 +10,7 @@ import tyro
 from rich.console import Console
 
 from neoedit.cli.data import InfoCommand
+from neoedit.cli.field import EvalCommand, RenderCommand, TrainCommand
 from neoedit.cli.sim import SimBenchmarkCommand, SimSceneCommand
 from neoedit.errors import NeoError
 
@@ -26,6 +27,9 @@ SimCommands = Annotated[
 Commands = Union[  # noqa: UP007
     SimCommands,
     Annotated[InfoCommand, tyro.conf.subcommand("info")],
+    Annotated[TrainCommand, tyro.conf.subcommand("train")],
+    Annotated[RenderCommand, tyro.conf.subcommand("render")],
+    Annotated[EvalCommand, tyro.conf.subcommand("eval")],
 ]
 
 

@@ -13,7 +13,7 @@ import numpy as np
 
 from neoedit.cameras import Cameras
 from neoedit.cameras.cameras import validate_pose
-from neoedit.data.images import read_rgb
+from neoedit.data.images import read_rgba
 from neoedit.data.nerfstudio import read_json
 from neoedit.data.scene_data import SceneData
 from neoedit.errors import DataError
@@ -26,7 +26,7 @@ def load_blender(
 ) -> SceneData:
     root = Path(root)
     file_paths: list[str] = []
-    images, poses, focal = [], [], []
+    images, alphas, poses, focal = [], [], [], []
     split: dict[str, list[int]] = {}
     for name in SPLITS:
         tf = root / f"transforms_{name}.json"
@@ -49,7 +49,8 @@ def load_blender(
             rel = str(frame["file_path"])
             if not Path(rel).suffix:
                 rel += ".png"
-            img = read_rgb(root / rel, background_rgb)
+            img, alpha = read_rgba(root / rel, background_rgb)
+            alphas.append(np.full(img.shape[:2], 255, np.uint8) if alpha is None else alpha)
             poses.append(validate_pose(np.asarray(frame["transform_matrix"]), where))
             focal.append(0.5 * img.shape[1] / np.tan(0.5 * angle))
             split[name].append(len(file_paths))
@@ -69,5 +70,6 @@ def load_blender(
         images=np.stack(images),
         cameras=cameras,
         split=split_idx,
+        alpha=np.stack(alphas),
         background_rgb=background_rgb,
     )

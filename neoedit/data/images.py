@@ -19,9 +19,25 @@ def _read(path: Path, what: str) -> np.ndarray:
         raise DataError(f"cannot read {what} {path}: {e}") from e
 
 
-def read_rgb(path: Path, background_rgb: tuple[float, float, float]) -> np.ndarray:
-    """(H, W, 3) uint8; an alpha channel is composited over ``background_rgb`` (in [0,1])."""
+def read_rgba(
+    path: Path, background_rgb: tuple[float, float, float]
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """(H, W, 3) uint8 composited over ``background_rgb`` (in [0,1]) and the alpha (H, W) uint8
+    (None when the image has no alpha channel)."""
     img = _read(path, "image")
+    alpha = (
+        img[..., 3].copy()
+        if img.ndim == 3 and img.shape[-1] == 4 and img.dtype == np.uint8
+        else None
+    )
+    return read_rgb(path, background_rgb, img), alpha
+
+
+def read_rgb(
+    path: Path, background_rgb: tuple[float, float, float], img: np.ndarray | None = None
+) -> np.ndarray:
+    """(H, W, 3) uint8; an alpha channel is composited over ``background_rgb`` (in [0,1])."""
+    img = _read(path, "image") if img is None else img
     if img.ndim == 2:
         img = np.repeat(img[..., None], 3, axis=-1)
     if img.dtype == np.uint16:

@@ -20,7 +20,7 @@ import numpy as np
 
 from neoedit.cameras import Cameras
 from neoedit.cameras.cameras import validate_pose
-from neoedit.data.images import read_depth_m, read_label, read_rgb
+from neoedit.data.images import read_depth_m, read_label, read_rgba
 from neoedit.data.scene_data import SceneData
 from neoedit.errors import DataError
 
@@ -92,35 +92,57 @@ def _split_indices(
     return split
 
 
-def load_nerfstudio(
-    path: Path, background_rgb: tuple[float, float, float] | None = None
-) -> SceneData:
-    """Load a nerfstudio dataset from a ``transforms.json`` file or the folder holding it."""
-    path = Path(path)
-    tf_path = path / "transforms.json" if path.is_dir() else path
-    root = tf_path.parent
+def _read_meta(path: Path) -> tuple[Path, dict[str, Any]]:
+    tf_path = Path(path) / "transforms.json" if Path(path).is_dir() else Path(path)
     meta = read_json(tf_path)
     if not isinstance(meta, dict) or not isinstance(meta.get("frames"), list) or not meta["frames"]:
         raise DataError(f"{tf_path}: needs a non-empty 'frames' list")
-    bg = background_rgb or tuple(meta.get("background_color", (1.0, 1.0, 1.0)))
-    unit = float(meta.get("depth_unit_scale_factor", 1e-3))
+    return tf_path, meta
 
-    file_paths: list[str] = []
-    images, poses, intr, depths, masks, labels = [], [], [], [], [], []
+
+def _parse_cameras(tf_path: Path, meta: dict[str, Any]) -> tuple[Cameras, list[str]]:
+    poses, intr, file_paths = [], [], []
     for i, frame in enumerate(meta["frames"]):
         where = f"{tf_path} frame {i}"
         if not isinstance(frame, dict) or "file_path" not in frame:
             raise DataError(f"{where}: missing 'file_path'")
         if "transform_matrix" not in frame:
             raise DataError(f"{where}: missing 'transform_matrix'")
-        poses.append(validate_pose(np.asarray(frame["transform_matrix"], dtype=np.float64), where))
+        poses.append(validate_pose(frame["transform_matrix"], where))
         intr.append(_intrinsics(meta, frame, where))
         file_paths.append(str(frame["file_path"]))
-        img = read_rgb(root / frame["file_path"], bg)
-        w, h = int(intr[-1][4]), int(intr[-1][5])
+    k = np.asarray(intr)
+    return Cameras(
+        np.stack(poses), k[:, 0], k[:, 1], k[:, 2], k[:, 3], k[:, 4], k[:, 5]
+    ), file_paths
+
+
+def load_cameras(path: Path) -> tuple[Cameras, list[str], dict[str, np.ndarray]]:
+    """Cameras, file paths and splits of a transforms.json, without reading any image."""
+    tf_path, meta = _read_meta(path)
+    cameras, file_paths = _parse_cameras(tf_path, meta)
+    return cameras, file_paths, _split_indices(meta, file_paths, tf_path)
+
+
+def load_nerfstudio(
+    path: Path, background_rgb: tuple[float, float, float] | None = None
+) -> SceneData:
+    """Load a nerfstudio dataset from a ``transforms.json`` file or the folder holding it."""
+    tf_path, meta = _read_meta(path)
+    root = tf_path.parent
+    cameras, file_paths = _parse_cameras(tf_path, meta)
+    bg = background_rgb or tuple(meta.get("background_color", (1.0, 1.0, 1.0)))
+    unit = float(meta.get("depth_unit_scale_factor", 1e-3))
+
+    images, alphas, depths, masks, labels = [], [], [], [], []
+    for i, frame in enumerate(meta["frames"]):
+        where = f"{tf_path} frame {i}"
+        img, alpha = read_rgba(root / frame["file_path"], bg)
+        w, h = int(cameras.width[i]), int(cameras.height[i])
         if img.shape[:2] != (h, w):
             raise DataError(f"{where}: image is {img.shape[1]}x{img.shape[0]} but w,h say {w}x{h}")
         images.append(img)
+        alphas.append(alpha)
         if "depth_file_path" in frame:
             depths.append(read_depth_m(root / frame["depth_file_path"], unit))
         if "mask_path" in frame:
@@ -140,8 +162,6 @@ def load_nerfstudio(
             )
         return np.stack(items)
 
-    k = np.asarray(intr)
-    cameras = Cameras(np.stack(poses), k[:, 0], k[:, 1], k[:, 2], k[:, 3], k[:, 4], k[:, 5])
     names, objects = _instance_names(root)
     aabb = meta.get("scene_aabb")
     return SceneData(
@@ -151,12 +171,25 @@ def load_nerfstudio(
         cameras=cameras,
         split=_split_indices(meta, file_paths, tf_path),
         depth_m=stack_optional(depths, "depth_file_path"),
+        alpha=_stack_alpha(alphas, images),
         loss_mask=stack_optional(masks, "mask_path"),
         instance_ids=stack_optional(labels, "instance_path"),
         instance_names=names,
         objects=objects,
         background_rgb=bg,
         scene_aabb_m=None if aabb is None else np.asarray(aabb, dtype=np.float64).reshape(2, 3),
+    )
+
+
+def _stack_alpha(alphas: list[np.ndarray | None], images: list[np.ndarray]) -> np.ndarray | None:
+    """(N,H,W) opacity if any image has alpha (frames without it are opaque), else None."""
+    if all(a is None for a in alphas):
+        return None
+    return np.stack(
+        [
+            np.full(im.shape[:2], 255, np.uint8) if a is None else a
+            for a, im in zip(alphas, images, strict=True)
+        ]
     )
 
 

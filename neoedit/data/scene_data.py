@@ -24,6 +24,9 @@ class SceneData:
     cameras: Cameras
     split: dict[str, np.ndarray]  # "train" / "test" -> frame indices
     depth_m: np.ndarray | None = None  # (N, H, W) float32 z-depth in metres, 0 = no data
+    alpha: np.ndarray | None = (
+        None  # (N, H, W) uint8 opacity from RGBA images (255 = object, 0 = background)
+    )
     loss_mask: np.ndarray | None = None  # (N, H, W) bool, nerfstudio mask_path (True = use)
     instance_ids: np.ndarray | None = None  # (N, H, W) int32 instance id per pixel
     instance_names: dict[int, str] = field(default_factory=dict)  # id -> name

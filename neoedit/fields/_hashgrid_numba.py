@@ -1,7 +1,9 @@
 """Compiled CPU kernels of the hash-grid encoding (numba; imported lazily).
 
-Work is split over levels, so parallel threads never write the same table rows and the
-backward scatter-add needs no atomics.
+Forward runs in parallel over points (each thread keeps a point's features in registers and
+writes one contiguous row). Backward runs in parallel over levels, so threads never write
+the same table rows and the scatter-add needs no atomics. Inputs must already be clamped to
+[0, 1) (the wrapper does it), so truncation equals floor.
 """
 
 from __future__ import annotations
@@ -24,53 +26,65 @@ def _row(cx: int, cy: int, cz: int, res: int, table_size: int) -> int:
 
 @numba.njit(parallel=True, fastmath=True, cache=True)
 def _forward(x, table, resolutions, out):  # pragma: no cover - compiled
-    n = x.shape[0]
     n_levels, table_size, n_feat = table.shape
-    for level in numba.prange(n_levels):
-        res = resolutions[level]
-        for i in range(n):
-            px = min(max(x[i, 0], 0.0), 1.0 - 1e-6) * res
-            py = min(max(x[i, 1], 0.0), 1.0 - 1e-6) * res
-            pz = min(max(x[i, 2], 0.0), 1.0 - 1e-6) * res
-            bx, by, bz = int(np.floor(px)), int(np.floor(py)), int(np.floor(pz))
+    for i in numba.prange(x.shape[0]):
+        for level in range(n_levels):
+            res = resolutions[level]
+            px, py, pz = x[i, 0] * res, x[i, 1] * res, x[i, 2] * res
+            bx, by, bz = int(px), int(py), int(pz)
             fx, fy, fz = px - bx, py - by, pz - bz
-            for f in range(n_feat):
-                out[i, level * n_feat + f] = 0.0
+            # accumulate in locals (up to 4 features): the compiler keeps them in registers
+            a0 = a1 = a2 = a3 = np.float32(0.0)
             for c in range(8):
                 ox, oy, oz = c & 1, (c >> 1) & 1, (c >> 2) & 1
                 w = (fx if ox else 1.0 - fx) * (fy if oy else 1.0 - fy) * (fz if oz else 1.0 - fz)
                 row = _row(bx + ox, by + oy, bz + oz, res, table_size)
-                for f in range(n_feat):
-                    out[i, level * n_feat + f] += w * table[level, row, f]
+                a0 += w * table[level, row, 0]
+                if n_feat > 1:
+                    a1 += w * table[level, row, 1]
+                if n_feat > 2:
+                    a2 += w * table[level, row, 2]
+                if n_feat > 3:
+                    a3 += w * table[level, row, 3]
+            out[i, level, 0] = a0
+            if n_feat > 1:
+                out[i, level, 1] = a1
+            if n_feat > 2:
+                out[i, level, 2] = a2
+            if n_feat > 3:
+                out[i, level, 3] = a3
 
 
 @numba.njit(parallel=True, fastmath=True, cache=True)
 def _backward(x, grad_out, resolutions, grad_table):  # pragma: no cover - compiled
-    n = x.shape[0]
     n_levels, table_size, n_feat = grad_table.shape
     for level in numba.prange(n_levels):
         res = resolutions[level]
-        for i in range(n):
-            px = min(max(x[i, 0], 0.0), 1.0 - 1e-6) * res
-            py = min(max(x[i, 1], 0.0), 1.0 - 1e-6) * res
-            pz = min(max(x[i, 2], 0.0), 1.0 - 1e-6) * res
-            bx, by, bz = int(np.floor(px)), int(np.floor(py)), int(np.floor(pz))
+        for i in range(x.shape[0]):
+            px, py, pz = x[i, 0] * res, x[i, 1] * res, x[i, 2] * res
+            bx, by, bz = int(px), int(py), int(pz)
             fx, fy, fz = px - bx, py - by, pz - bz
             for c in range(8):
                 ox, oy, oz = c & 1, (c >> 1) & 1, (c >> 2) & 1
                 w = (fx if ox else 1.0 - fx) * (fy if oy else 1.0 - fy) * (fz if oz else 1.0 - fz)
                 row = _row(bx + ox, by + oy, bz + oz, res, table_size)
                 for f in range(n_feat):
-                    grad_table[level, row, f] += w * grad_out[i, level * n_feat + f]
+                    grad_table[level, row, f] += w * grad_out[level, i, f]
 
 
 def forward(x: np.ndarray, table: np.ndarray, resolutions: np.ndarray) -> np.ndarray:
-    out = np.empty((x.shape[0], table.shape[0] * table.shape[2]), dtype=np.float32)
+    """Features (N, L, F) of points x (N, 3) clamped to [0, 1); F is at most 4."""
+    if table.shape[2] > 4:
+        raise ValueError("the numba hash-grid kernel supports at most 4 features per level")
+    out = np.empty((x.shape[0], table.shape[0], table.shape[2]), dtype=np.float32)
     _forward(x, table, resolutions, out)
     return out
 
 
-def backward(x: np.ndarray, grad_out: np.ndarray, resolutions: np.ndarray, table_shape) -> np.ndarray:
+def backward(
+    x: np.ndarray, grad_out: np.ndarray, resolutions: np.ndarray, table_shape
+) -> np.ndarray:
+    """Table gradient (L, T, F) from the output gradient laid out level-major (L, N, F)."""
     grad_table = np.zeros(tuple(table_shape), dtype=np.float32)
     _backward(x, grad_out, resolutions, grad_table)
     return grad_table

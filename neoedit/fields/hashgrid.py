@@ -40,22 +40,32 @@ class HashGridConfig:
 def level_resolutions(cfg: HashGridConfig) -> list[int]:
     if cfg.n_levels == 1:
         return [cfg.base_resolution]
-    growth = math.exp((math.log(cfg.max_resolution) - math.log(cfg.base_resolution)) / (cfg.n_levels - 1))
+    growth = math.exp(
+        (math.log(cfg.max_resolution) - math.log(cfg.base_resolution)) / (cfg.n_levels - 1)
+    )
     return [int(math.floor(cfg.base_resolution * growth**level)) for level in range(cfg.n_levels)]
 
 
-def corner_indices_torch(x: torch.Tensor, resolutions: torch.Tensor, table_size: int) -> tuple[torch.Tensor, torch.Tensor]:
+def corner_indices_torch(
+    x: torch.Tensor, resolutions: torch.Tensor, table_size: int
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Per level and corner: table row (N, L, 8) int64 and trilinear weight (N, L, 8)."""
     pos = x.clamp(0.0, 1.0 - 1e-6)[:, None, :] * resolutions[None, :, None].to(x.dtype)  # (N, L, 3)
     base = pos.floor().long()
     frac = pos - base
-    offsets = torch.tensor([[(c >> 0) & 1, (c >> 1) & 1, (c >> 2) & 1] for c in range(8)], device=x.device)
+    offsets = torch.tensor(
+        [[(c >> 0) & 1, (c >> 1) & 1, (c >> 2) & 1] for c in range(8)], device=x.device
+    )
     corner = base[:, :, None, :] + offsets[None, None]  # (N, L, 8, 3)
-    w = torch.where(offsets[None, None].bool(), frac[:, :, None, :], 1.0 - frac[:, :, None, :]).prod(-1)
+    w = torch.where(
+        offsets[None, None].bool(), frac[:, :, None, :], 1.0 - frac[:, :, None, :]
+    ).prod(-1)
     side = (resolutions + 1)[None, :, None]
     dense = side**3 <= table_size
     dense_idx = corner[..., 0] + corner[..., 1] * side + corner[..., 2] * side * side
-    hashed = (corner[..., 0] * PRIMES[0]) ^ (corner[..., 1] * PRIMES[1]) ^ (corner[..., 2] * PRIMES[2])
+    hashed = (
+        (corner[..., 0] * PRIMES[0]) ^ (corner[..., 1] * PRIMES[1]) ^ (corner[..., 2] * PRIMES[2])
+    )
     idx = torch.where(dense, dense_idx, hashed & (table_size - 1))
     return idx, w
 
@@ -71,24 +81,28 @@ def encode_torch(x: torch.Tensor, table: torch.Tensor, resolutions: torch.Tensor
 
 class _NumbaEncode(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, x: torch.Tensor, table: torch.Tensor, resolutions: torch.Tensor) -> torch.Tensor:  # type: ignore[override]
+    def forward(
+        ctx, x: torch.Tensor, table: torch.Tensor, resolutions: torch.Tensor
+    ) -> torch.Tensor:  # type: ignore[override]
         from neoedit.fields import _hashgrid_numba as kernels
 
-        x_np = x.detach().contiguous().numpy()
-        res_np = resolutions.numpy()
-        out = kernels.forward(x_np, table.detach().contiguous().numpy(), res_np)
+        x = x.detach().clamp(0.0, 1.0 - 1e-6).contiguous()
+        out = kernels.forward(x.numpy(), table.detach().contiguous().numpy(), resolutions.numpy())
         ctx.save_for_backward(x, resolutions)
         ctx.table_shape = table.shape
-        return torch.from_numpy(out)
+        return torch.from_numpy(out).reshape(x.shape[0], -1)
 
     @staticmethod
     def backward(ctx, grad_out: torch.Tensor):  # type: ignore[override]
         from neoedit.fields import _hashgrid_numba as kernels
 
         x, resolutions = ctx.saved_tensors
+        n_levels, _, n_feat = ctx.table_shape
+        grad_lnf = (
+            grad_out.detach().float().reshape(-1, n_levels, n_feat).permute(1, 0, 2).contiguous()
+        )
         grad_table = kernels.backward(
-            x.detach().contiguous().numpy(), grad_out.detach().contiguous().float().numpy(),
-            resolutions.numpy(), ctx.table_shape,
+            x.numpy(), grad_lnf.numpy(), resolutions.numpy(), ctx.table_shape
         )
         return None, torch.from_numpy(grad_table), None
 
@@ -113,8 +127,13 @@ class HashGridEncoding(nn.Module):
         t = 2**cfg.log2_hashmap_size
         table = (torch.rand(cfg.n_levels, t, cfg.features_per_level, generator=gen) * 2 - 1) * 1e-4
         self.table = nn.Parameter(table)
-        self.register_buffer("resolutions", torch.tensor(level_resolutions(cfg), dtype=torch.int64), persistent=False)
-        self._use_numba = cfg.backend == "numba" or (cfg.backend == "auto" and numba_available())
+        self.register_buffer(
+            "resolutions", torch.tensor(level_resolutions(cfg), dtype=torch.int64), persistent=False
+        )
+        fits_kernel = cfg.features_per_level <= 4
+        self._use_numba = fits_kernel and (
+            cfg.backend == "numba" or (cfg.backend == "auto" and numba_available())
+        )
 
     @property
     def output_dim(self) -> int:

@@ -6,8 +6,10 @@ Serialised everywhere (objects.json, scene.json, ``neo query`` output) as
 
 from __future__ import annotations
 
+import json
 from collections.abc import Mapping
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import cv2
@@ -173,3 +175,16 @@ def box_iou_3d(a: OrientedBox, b: OrientedBox) -> float:
     inter = area * dz
     union = a.volume_m3 + b.volume_m3 - inter
     return inter / union if union > 0 else 0.0
+
+
+def load_boxes(path: Path) -> list[OrientedBox]:
+    """Read one box or a list of boxes from a JSON file (also accepts ``{"box": {...}}``)."""
+    path = Path(path)
+    if not path.is_file():
+        raise NeoError(f"box file not found: {path}")
+    try:
+        data = json.loads(path.read_text())
+    except json.JSONDecodeError as e:
+        raise NeoError(f"{path} is not valid JSON: {e}") from None
+    items = data if isinstance(data, list) else [data]
+    return [OrientedBox.from_dict(d.get("box", d) if isinstance(d, dict) else {}) for d in items]

@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 import pybullet as pb
 
+from neoedit.cameras import Cameras
 from neoedit.sim.spec import ScanSpec
 from neoedit.sim.trajectory import eval_ring_poses, intrinsics, spiral_poses
 from neoedit.sim.world import BACKGROUND_ID, ROBOT_ID, TABLE_ID, SimWorld
@@ -58,6 +59,12 @@ def render_view(
     return rgb, depth, labels
 
 
+def _backproject(c2w: np.ndarray, scan: ScanSpec, depth: np.ndarray) -> np.ndarray:
+    k = intrinsics(scan)
+    cams = Cameras(c2w[None], k["fl_x"], k["fl_y"], k["cx"], k["cy"], scan.width, scan.height)
+    return cams.backproject_depth(0, depth)[depth > 0]
+
+
 def objects_metadata(world: SimWorld) -> dict[str, Any]:
     """objects.json: every instance id with its name, and per object its pose and box."""
     instances = [
@@ -95,6 +102,7 @@ def capture_scan(
     test_files: list[str] = []
     thumbs: list[np.ndarray] = []
     names: list[str] = []
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)  # bounds of every visible surface point
     for i in track(range(len(poses)), f"render {label}"):
         split = "train" if i < n_train else "eval"
         stem = f"{split}_{i if i < n_train else i - n_train:04d}"
@@ -104,7 +112,11 @@ def capture_scan(
             "depth_file_path": f"depth/{stem}.png",
             "instance_path": f"instances/{stem}.png",
         }
-        write_png(out_dir / rel["file_path"], rgb)
+        alpha = np.where(depth > 0, 255, 0).astype(np.uint8)  # transparent where nothing was hit
+        write_png(out_dir / rel["file_path"], np.concatenate([rgb, alpha[..., None]], axis=-1))
+        pts = _backproject(poses[i], scan, depth)
+        if len(pts):
+            lo, hi = np.minimum(lo, pts.min(0)), np.maximum(hi, pts.max(0))
         write_png(
             out_dir / rel["depth_file_path"], np.round(depth / DEPTH_UNIT_M).astype(np.uint16)
         )
@@ -113,7 +125,7 @@ def capture_scan(
         (train_files if split == "train" else test_files).append(rel["file_path"])
         thumbs.append(rgb)
         names.append(stem)
-    aabb = world.aabb_m()
+    aabb = np.stack([lo, hi]) if np.isfinite(lo).all() else world.aabb_m()
     transforms = {
         "camera_model": "PINHOLE",
         **intrinsics(scan),

@@ -1,0 +1,123 @@
+"""``neo train``, ``neo render`` and ``neo eval``."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Literal
+
+import tyro
+from rich.console import Console
+
+from neoedit.fields.radiance import RadianceFieldConfig
+from neoedit.rendering.occupancy import OccupancyGridConfig
+from neoedit.rendering.renderer import RenderConfig
+from neoedit.training.trainer import TrainConfig
+
+console = Console()
+
+
+@dataclass
+class TrainCommand:
+    """Train a scene (radiance field) on a dataset (nerfstudio transforms.json or Blender)."""
+
+    data: tyro.conf.Positional[Path]
+    """Dataset folder."""
+    out: Path
+    """Scene directory to write (checkpointed atomically during training)."""
+    train: Annotated[TrainConfig, tyro.conf.OmitArgPrefixes] = dataclasses.field(
+        default_factory=TrainConfig
+    )
+    field: RadianceFieldConfig = dataclasses.field(default_factory=RadianceFieldConfig)
+    grid: OccupancyGridConfig = dataclasses.field(default_factory=OccupancyGridConfig)
+    render: RenderConfig = dataclasses.field(default_factory=RenderConfig)
+    device: str = "auto"
+    """'auto' (CUDA if available), 'cpu' or 'cuda[:N]'."""
+    resume: bool = False
+    """Continue training the scene in OUT up to --max-steps."""
+
+    def run(self) -> None:
+        from neoedit.training.trainer import train
+
+        scene = train(
+            self.data,
+            self.out,
+            self.train,
+            self.field,
+            self.render,
+            self.grid,
+            self.device,
+            self.resume,
+        )
+        last = scene.meta.history[-1] if scene.meta.history else {}
+        console.print(
+            f"wrote {self.out}: {scene.meta.step} steps in {scene.meta.train_seconds:.1f} s, "
+            f"train PSNR {last.get('train_psnr')} dB, held-out PSNR {last.get('eval_psnr')} dB"
+        )
+
+
+@dataclass
+class RenderCommand:
+    """Render a scene: its training or held-out views, a spiral video, or the cameras of a transforms.json."""
+
+    scene: tyro.conf.Positional[Path]
+    """Scene directory."""
+    out: Path
+    """Output folder (a nerfstudio dataset: images/, depth/ in mm, depth_vis/, transforms.json)."""
+    views: Literal["train", "eval", "spiral"] = "eval"
+    """Which cameras: the training data's train or held-out split, or a spiral around the scene."""
+    cameras: Path | None = None
+    """Render exactly the frames of this transforms.json, each under its own file_path (overrides --views)."""
+    n_frames: int = 60
+    """Frames of the spiral."""
+    video: bool = False
+    """Also write video.gif (and video.mp4 if imageio-ffmpeg is installed)."""
+    device: str = "auto"
+
+    def run(self) -> None:
+        from neoedit.rendering.export import render_command
+
+        n = render_command(
+            self.scene, self.out, self.views, self.cameras, self.n_frames, self.video, self.device
+        )
+        console.print(f"wrote {n} views to {self.out}")
+
+
+@dataclass
+class EvalCommand:
+    """PSNR, SSIM, depth RMSE and E_rep of a scene against ground-truth views (Full / Out / In)."""
+
+    scene: tyro.conf.Positional[Path]
+    """Scene directory."""
+    data: Path
+    """Ground-truth dataset (e.g. the post-manipulation scan)."""
+    json: Path | None = None
+    """Write the metrics here as JSON."""
+    split: Literal["test", "train", "all"] = "test"
+    """Which frames of DATA to compare against."""
+    out_box: Path | None = None
+    """Box JSON ({"center","size","yaw_deg"}, or a list of them): the 'Out' region (object moved out)."""
+    in_box: Path | None = None
+    """Box JSON: the 'In' region (object moved in)."""
+    images: Path | None = None
+    """Write rendered|ground-truth side-by-side images here."""
+    device: str = "auto"
+
+    def run(self) -> None:
+        from neoedit.data import load_scene_data
+        from neoedit.eval.evaluate import evaluate
+        from neoedit.geometry.box import load_boxes
+        from neoedit.scene import load_scene
+        from neoedit.training.trainer import resolve_device
+        from neoedit.utils.io import atomic_write_json
+
+        scene = load_scene(self.scene, resolve_device(self.device))
+        data = load_scene_data(self.data)
+        out_boxes = load_boxes(self.out_box) if self.out_box else []
+        in_boxes = load_boxes(self.in_box) if self.in_box else []
+        result = evaluate(scene, data, self.split, out_boxes, in_boxes, self.images)
+        if self.json:
+            atomic_write_json(self.json, result)
+        console.print_json(json.dumps(result))

@@ -1,0 +1,1 @@
+"""Image and geometry metrics over full images and box regions (paper Sec. V)."""

@@ -1,0 +1,113 @@
+"""Evaluate a scene against ground-truth views: Full / Out / In regions (paper Sec. V)."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from neoedit.cameras.rays import CameraTensors
+from neoedit.data import SceneData
+from neoedit.eval.metrics import depth_rmse_m, psnr, reprojection_error, ssim
+from neoedit.eval.regions import masks_for_boxes
+from neoedit.geometry import OrientedBox
+from neoedit.rendering.renderer import render_image
+from neoedit.scene import Scene
+from neoedit.utils.io import write_png
+from neoedit.utils.progress import track
+
+METRICS = ("psnr", "ssim", "depth_rmse_m", "e_rep")
+
+
+def render_views(
+    scene: Scene, data: SceneData, indices: Sequence[int], boxes: Sequence[OrientedBox] = ()
+) -> list[dict[str, np.ndarray]]:
+    """Render the dataset's cameras ``indices`` -> rgb (H,W,3) in [0,1], depth_z (H,W) [m], accumulation."""
+    device = scene.field.aabb.device
+    cams = CameraTensors(data.cameras, device)
+    out = []
+    for i in track(list(indices), "render"):
+        r = render_image(
+            scene.field,
+            scene.grid,
+            cams,
+            int(i),
+            data.height,
+            data.width,
+            scene.meta.render,
+            scene.background,
+            boxes,
+        )
+        out.append({k: v.detach().cpu().numpy() for k, v in r.items()})
+    return out
+
+
+def evaluate(
+    scene: Scene,
+    data: SceneData,
+    split: str = "test",
+    out_boxes: Sequence[OrientedBox] = (),
+    in_boxes: Sequence[OrientedBox] = (),
+    image_dir: Path | None = None,
+) -> dict[str, Any]:
+    """Metrics of ``scene`` rendered at the ``split`` cameras of ``data`` (ground truth)."""
+    indices = [int(i) for i in data.indices(split)]
+    if not indices:
+        raise ValueError(f"split '{split}' of {data.root} has no frames")
+    t0 = time.perf_counter()
+    renders = render_views(scene, data, indices)
+    seconds_per_view = (time.perf_counter() - t0) / len(indices)
+    regions: dict[str, list[np.ndarray | None]] = {"full": [None] * len(indices)}
+    if out_boxes:
+        regions["out"] = [masks_for_boxes(data.cameras, i, list(out_boxes)) for i in indices]
+    if in_boxes:
+        regions["in"] = [masks_for_boxes(data.cameras, i, list(in_boxes)) for i in indices]
+    per_region: dict[str, dict[str, list[float]]] = {r: {m: [] for m in METRICS} for r in regions}
+    for k, i in enumerate(indices):
+        gt = data.images[i].astype(np.float32) / 255.0
+        pred = renders[k]["rgb"].clip(0.0, 1.0)
+        nxt = (k + 1) % len(indices)
+        for region, masks in regions.items():
+            mask = masks[k]
+            m = per_region[region]
+            m["psnr"].append(psnr(pred, gt, mask))
+            m["ssim"].append(ssim(pred, gt, mask))
+            m["depth_rmse_m"].append(
+                depth_rmse_m(renders[k]["depth_z"], data.depth_m[i], mask)
+                if data.depth_m is not None
+                else float("nan")
+            )
+            if len(indices) > 1:
+                m["e_rep"].append(
+                    reprojection_error(
+                        pred,
+                        renders[k]["depth_z"],
+                        renders[nxt]["rgb"].clip(0, 1),
+                        data.cameras,
+                        i,
+                        indices[nxt],
+                        mask,
+                    )[0]
+                )
+        if image_dir is not None:
+            side = np.concatenate([pred, gt], axis=1)
+            write_png(
+                image_dir / f"{Path(data.file_paths[i]).stem}.png",
+                (side * 255).round().astype(np.uint8),
+            )
+    result: dict[str, Any] = {
+        region: {m: _nanmean(v) for m, v in values.items()} for region, values in per_region.items()
+    }
+    result["n_views"] = len(indices)
+    result["split"] = split
+    result["render_seconds_per_view"] = round(seconds_per_view, 3)
+    return result
+
+
+def _nanmean(values: list[float]) -> float | None:
+    arr = np.asarray(values, dtype=np.float64)
+    arr = arr[np.isfinite(arr)]
+    return round(float(arr.mean()), 5) if len(arr) else None

@@ -1,0 +1,93 @@
+"""The scene field F_Theta: hash-grid encoding + small MLPs -> density and view-dependent colour.
+
+Queryable at arbitrary world points (``density``, ``forward``), clonable with
+``copy.deepcopy`` (teacher/student), device-agnostic.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import torch
+from torch import nn
+
+from neoedit.fields.encodings import spherical_harmonics_deg3
+from neoedit.fields.hashgrid import HashGridConfig, HashGridEncoding
+
+
+@dataclass
+class RadianceFieldConfig:
+    hashgrid: HashGridConfig = field(default_factory=HashGridConfig)
+    """Position encoding."""
+    hidden_dim: int = 64
+    """Width of the density MLP."""
+    geo_feat_dim: int = 15
+    """Features passed from the density MLP to the colour MLP."""
+    hidden_dim_color: int = 64
+    """Width of the colour MLP (two hidden layers)."""
+    density_bias: float = -1.0
+    """Initial pre-activation bias of the density (exp activation)."""
+
+
+class TruncExp(torch.autograd.Function):
+    """exp with a gradient clamped for stability (Instant-NGP)."""
+
+    @staticmethod
+    def forward(ctx, x: torch.Tensor) -> torch.Tensor:  # type: ignore[override]
+        ctx.save_for_backward(x)
+        return torch.exp(x)
+
+    @staticmethod
+    def backward(ctx, g: torch.Tensor) -> torch.Tensor:  # type: ignore[override]
+        (x,) = ctx.saved_tensors
+        return g * torch.exp(x.clamp(-15.0, 15.0))
+
+
+class RadianceField(nn.Module):
+    def __init__(self, cfg: RadianceFieldConfig, aabb: torch.Tensor, seed: int = 0):
+        super().__init__()
+        self.cfg = cfg
+        torch.manual_seed(seed)
+        self.register_buffer(
+            "aabb", torch.as_tensor(aabb, dtype=torch.float32).clone()
+        )  # (2,3) world metres
+        self.encoding = HashGridEncoding(cfg.hashgrid, seed=seed)
+        self.density_mlp = nn.Sequential(
+            nn.Linear(self.encoding.output_dim, cfg.hidden_dim),
+            nn.ReLU(),
+            nn.Linear(cfg.hidden_dim, 1 + cfg.geo_feat_dim),
+        )
+        with torch.no_grad():
+            self.density_mlp[-1].bias[0] = cfg.density_bias
+        self.color_mlp = nn.Sequential(
+            nn.Linear(cfg.geo_feat_dim + 16, cfg.hidden_dim_color),
+            nn.ReLU(),
+            nn.Linear(cfg.hidden_dim_color, cfg.hidden_dim_color),
+            nn.ReLU(),
+            nn.Linear(cfg.hidden_dim_color, 3),
+        )
+
+    def normalize(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """World points (N,3) -> unit-cube coordinates (N,3) and an inside-the-box mask (N,)."""
+        u = (points - self.aabb[0]) / (self.aabb[1] - self.aabb[0])
+        return u, ((u >= 0) & (u <= 1)).all(-1)
+
+    def density_and_features(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """sigma (N,) [1/m] and geometry features (N, G) at world points (N,3)."""
+        u, inside = self.normalize(points)
+        h = self.density_mlp(self.encoding(u))
+        sigma = TruncExp.apply(h[:, 0]) * inside
+        return sigma, h[:, 1:]
+
+    def density(self, points: torch.Tensor) -> torch.Tensor:
+        return self.density_and_features(points)[0]
+
+    def forward(
+        self, points: torch.Tensor, directions: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """sigma (N,) [1/m] and rgb (N,3) in [0,1] at world points (N,3) seen along unit directions (N,3)."""
+        sigma, geo = self.density_and_features(points)
+        rgb = torch.sigmoid(
+            self.color_mlp(torch.cat([geo, spherical_harmonics_deg3(directions)], -1))
+        )
+        return sigma, rgb

@@ -1,0 +1,1 @@
+"""Ray intervals, samplers, occupancy grid and volume rendering (a flat functional core)."""

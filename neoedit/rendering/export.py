@@ -1,0 +1,168 @@
+"""``neo render``: write renders of a scene as a nerfstudio dataset (RGB, metric depth) plus
+colour-mapped depth and an optional video."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import imageio.v3 as iio
+import matplotlib
+import numpy as np
+
+from neoedit.cameras import Cameras, look_at
+from neoedit.cameras.rays import CameraTensors
+from neoedit.data.load import load_scene_data
+from neoedit.data.nerfstudio import load_cameras
+from neoedit.errors import NeoError
+from neoedit.rendering.renderer import render_image
+from neoedit.scene import Scene, load_scene
+from neoedit.utils.io import atomic_write_json, write_png
+from neoedit.utils.progress import track
+
+DEPTH_UNIT_M = 1e-3
+
+
+def scene_cameras(data_path: Path) -> tuple[Cameras, list[str], dict[str, np.ndarray]]:
+    """Cameras of the dataset a scene was trained on (images are not read for nerfstudio data)."""
+    if (Path(data_path) / "transforms.json").is_file():
+        return load_cameras(Path(data_path))
+    data = load_scene_data(Path(data_path))
+    return data.cameras, data.file_paths, data.split
+
+
+def orbit_center(cameras: Cameras) -> np.ndarray:
+    """Least-squares point closest to all optical axes (where the cameras look)."""
+    origins = cameras.camera_to_world[:, :3, 3]
+    dirs = -cameras.camera_to_world[:, :3, 2]
+    a = np.zeros((3, 3))
+    b = np.zeros(3)
+    for o, d in zip(origins, dirs, strict=True):
+        p = np.eye(3) - np.outer(d, d)
+        a += p
+        b += p @ o
+    return np.linalg.lstsq(a, b, rcond=None)[0]
+
+
+def spiral_cameras(cameras: Cameras, n_frames: int) -> Cameras:
+    """A full orbit at the median distance and elevation of the cameras, looking at their centre."""
+    center = orbit_center(cameras)
+    offsets = cameras.camera_to_world[:, :3, 3] - center
+    radius = float(np.median(np.linalg.norm(offsets, axis=1)))
+    elev = float(np.median(np.arcsin(offsets[:, 2] / np.linalg.norm(offsets, axis=1))))
+    az = np.linspace(0, 2 * np.pi, n_frames, endpoint=False)
+    eyes = center + radius * np.stack(
+        [np.cos(elev) * np.cos(az), np.cos(elev) * np.sin(az), np.full_like(az, np.sin(elev))], -1
+    )
+    poses = np.stack([look_at(e, center) for e in eyes])
+    return Cameras(
+        poses,
+        cameras.fx[0],
+        cameras.fy[0],
+        cameras.cx[0],
+        cameras.cy[0],
+        cameras.width[0],
+        cameras.height[0],
+    )
+
+
+def colorize_depth(depth_m: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    """(H,W) metres -> (H,W,3) uint8 with the turbo colour map (0 = no depth: black)."""
+    norm = np.clip((depth_m - lo) / max(hi - lo, 1e-6), 0, 1)
+    rgb = matplotlib.colormaps["turbo"](norm)[..., :3]
+    rgb[depth_m <= 0] = 0
+    return (rgb * 255).round().astype(np.uint8)
+
+
+def render_to_dataset(
+    scene: Scene, cameras: Cameras, names: list[str], out: Path, video: bool = False
+) -> int:
+    """Render every camera; RGB goes to out/<name> (names are relative file paths)."""
+    device = scene.field.aabb.device
+    cams = CameraTensors(cameras, device)
+    frames, rgbs, depths = [], [], []
+    for i in track(range(len(cameras)), "render"):
+        r = render_image(
+            scene.field,
+            scene.grid,
+            cams,
+            i,
+            int(cameras.height[i]),
+            int(cameras.width[i]),
+            scene.meta.render,
+            scene.background,
+        )
+        rgb = (r["rgb"].clamp(0, 1).cpu().numpy() * 255).round().astype(np.uint8)
+        depth = np.where(r["accumulation"].cpu().numpy() > 0.5, r["depth_z"].cpu().numpy(), 0.0)
+        stem = Path(names[i]).with_suffix("")
+        write_png(out / names[i], rgb)
+        write_png(
+            out / "depth" / f"{stem}.png",
+            np.round(depth / DEPTH_UNIT_M).clip(0, 65535).astype(np.uint16),
+        )
+        frames.append(
+            {
+                "file_path": names[i],
+                "depth_file_path": f"depth/{stem}.png",
+                "transform_matrix": cameras.camera_to_world[i].tolist(),
+                "fl_x": float(cameras.fx[i]),
+                "fl_y": float(cameras.fy[i]),
+                "cx": float(cameras.cx[i]),
+                "cy": float(cameras.cy[i]),
+                "w": int(cameras.width[i]),
+                "h": int(cameras.height[i]),
+            }
+        )
+        rgbs.append(rgb)
+        depths.append((stem, depth))
+    valid = np.concatenate([d[d > 0] for _, d in depths]) if depths else np.zeros(0)
+    lo, hi = np.percentile(valid, [2, 98]) if len(valid) else (0.0, 1.0)
+    vis = []
+    for stem, depth in depths:
+        img = colorize_depth(depth, float(lo), float(hi))
+        write_png(out / "depth_vis" / f"{stem}.png", img)
+        vis.append(img)
+    atomic_write_json(
+        out / "transforms.json",
+        {
+            "depth_unit_scale_factor": DEPTH_UNIT_M,
+            "background_color": scene.meta.background_rgb,
+            "frames": frames,
+        },
+    )
+    if video and rgbs:
+        strip = [np.concatenate([a, b], axis=1) for a, b in zip(rgbs, vis, strict=True)]
+        iio.imwrite(out / "video.gif", strip, duration=1000 / 15, loop=0)
+        if importlib.util.find_spec("imageio_ffmpeg") is not None:  # optional extra [video]
+            iio.imwrite(out / "video.mp4", strip, fps=15)
+    return len(rgbs)
+
+
+def render_command(
+    scene_dir: Path,
+    out: Path,
+    views: str,
+    cameras_json: Path | None,
+    n_frames: int,
+    video: bool,
+    device: str,
+) -> int:
+    from neoedit.training.trainer import resolve_device
+
+    scene = load_scene(scene_dir, resolve_device(device))
+    if cameras_json is not None:
+        cameras, names, _ = load_cameras(cameras_json)
+    else:
+        data_cams, data_names, split = scene_cameras(Path(scene.meta.data_path))
+        if views == "spiral":
+            if n_frames < 1:
+                raise NeoError("--n-frames must be at least 1")
+            cameras = spiral_cameras(data_cams, n_frames)
+            names = [f"images/spiral_{k:04d}.png" for k in range(n_frames)]
+        else:
+            idx = split["train" if views == "train" else "test"]
+            if len(idx) == 0:
+                raise NeoError(f"the scene's dataset has no '{views}' views")
+            cameras = data_cams.subset(idx)
+            names = [data_names[i] for i in idx]
+    return render_to_dataset(scene, cameras, names, out, video)

@@ -1,0 +1,107 @@
+"""Occupancy grid for empty-space skipping (Instant-NGP style).
+
+A coarse grid over the scene box caches the field's density (an exponential moving
+maximum). Rendering uses it twice: as a cheap proposal (volume-render the cached density
+along many coarse samples, then draw the network samples from those weights) and to skip
+network queries in cells that are empty.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+
+@dataclass
+class OccupancyGridConfig:
+    resolution: int = 96
+    """Cells per axis over the scene box."""
+    update_every: int = 16
+    """Training steps between grid updates."""
+    decay: float = 0.95
+    """Per-update decay of the cached density before taking the max with new values."""
+    threshold: float = 1.0
+    """Density [1/m] above which a cell counts as occupied (capped by the grid's mean); 1/m
+    makes a 1 cm step less than 1% opaque."""
+    warmup_steps: int = 64
+    """During warm-up every cell is refreshed at each update; afterwards a quarter."""
+
+
+class OccupancyGrid(nn.Module):
+    def __init__(self, cfg: OccupancyGridConfig, aabb: torch.Tensor):
+        super().__init__()
+        self.cfg = cfg
+        r = cfg.resolution
+        self.register_buffer("aabb", aabb.float().clone())
+        self.register_buffer("density", torch.zeros((r, r, r)))
+        self.register_buffer("n_updates", torch.zeros((), dtype=torch.long))
+        # everything counts as occupied until the first update
+        self.register_buffer("occupied", torch.ones((r, r, r), dtype=torch.bool), persistent=False)
+
+    def refresh_mask(self) -> None:
+        """Occupied = cached density above the threshold, dilated by one cell so that a cell
+        whose probe point missed a thin surface is still marched."""
+        if int(self.n_updates) == 0:
+            self.occupied.fill_(True)
+            return
+        thresh = min(self.cfg.threshold, float(self.density.clamp_max(1e3).mean()))
+        above = (self.density > thresh).float()[None, None]
+        self.occupied.copy_(torch.nn.functional.max_pool3d(above, 3, stride=1, padding=1)[0, 0] > 0)
+
+    def _load_from_state_dict(self, *args, **kwargs):  # type: ignore[no-untyped-def]
+        super()._load_from_state_dict(*args, **kwargs)
+        self.refresh_mask()
+
+    def cell_index(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Flat cell index (N,) of world points and whether each is inside the box (N,)."""
+        r = self.cfg.resolution
+        u = (points - self.aabb[0]) / (self.aabb[1] - self.aabb[0])
+        inside = ((u >= 0) & (u < 1)).all(-1)
+        ijk = (u.clamp(0, 1 - 1e-6) * r).long()
+        return ijk[:, 0] * r * r + ijk[:, 1] * r + ijk[:, 2], inside
+
+    def lookup_density(self, points: torch.Tensor) -> torch.Tensor:
+        """Cached density (N,) at world points (0 outside the box)."""
+        idx, inside = self.cell_index(points)
+        return torch.where(
+            inside, self.density.reshape(-1)[idx], torch.zeros_like(idx, dtype=torch.float32)
+        )
+
+    def is_occupied(self, points: torch.Tensor) -> torch.Tensor:
+        idx, inside = self.cell_index(points)
+        return inside & self.occupied.reshape(-1)[idx]
+
+    @torch.no_grad()
+    def update(
+        self,
+        density_fn: Callable[[torch.Tensor], torch.Tensor],
+        step: int,
+        generator: torch.Generator | None = None,
+        chunk: int = 1 << 18,
+    ) -> None:
+        """Refresh cached densities at one jittered point per chosen cell."""
+        r = self.cfg.resolution
+        n_cells = r**3
+        device = self.density.device
+        flat = self.density.reshape(-1)
+        if step < self.cfg.warmup_steps:
+            cells = torch.arange(n_cells, device=device)
+        else:
+            n = n_cells // 4
+            random_cells = torch.randint(0, n_cells, (n,), device=device, generator=generator)
+            occupied_cells = torch.nonzero(self.occupied.reshape(-1))[:, 0]
+            cells = torch.cat([random_cells, occupied_cells])
+        ijk = torch.stack([cells // (r * r), (cells // r) % r, cells % r], -1).float()
+        jitter = torch.rand(ijk.shape, device=device, generator=generator)
+        points = self.aabb[0] + (ijk + jitter) / r * (self.aabb[1] - self.aabb[0])
+        new = torch.cat([density_fn(points[i : i + chunk]) for i in range(0, len(points), chunk)])
+        if step < self.cfg.warmup_steps:
+            flat.copy_(new.float())  # all cells, in order: forget the untrained network's values
+        else:
+            flat.mul_(self.cfg.decay)
+            flat.scatter_reduce_(0, cells, new.float(), reduce="amax")
+        self.n_updates += 1
+        self.refresh_mask()

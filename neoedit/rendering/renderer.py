@@ -1,0 +1,194 @@
+"""Render rays of a radiance field: intervals -> grid proposal -> PDF samples -> field -> composite.
+
+``boxes`` are removal boxes (paper Sec. III-A): their segments are cut out of every ray
+before sampling, so the preview of a removal needs no training.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import torch
+
+from neoedit.cameras.rays import CameraTensors, RayBundle
+from neoedit.fields.radiance import RadianceField
+from neoedit.geometry import OrientedBox
+from neoedit.rendering.intervals import RayIntervals, cut_boxes, near_far_intervals, ray_aabb
+from neoedit.rendering.occupancy import OccupancyGrid
+from neoedit.rendering.samplers import pdf_edges, uniform_edges
+from neoedit.rendering.volume import composite, render_weights
+
+
+@dataclass
+class RenderConfig:
+    n_march_samples: int = 512
+    """Evenly spaced candidate bins per ray over its valid domain, checked on the occupancy grid."""
+    n_coarse_samples: int = 64
+    """Density-only network queries per ray (no gradient), spread over the occupied candidates
+    (or evenly spaced before the grid is trained). Their weights drive the PDF pass."""
+    n_samples: int = 32
+    """Network samples per ray drawn by PDF resampling on the same domain (these are rendered)."""
+    near_m: float = 0.05
+    """Closest distance from the camera that is rendered."""
+    chunk_rays: int = 8192
+    """Rays per chunk when rendering whole images."""
+
+
+@dataclass
+class RaySamples:
+    intervals: RayIntervals
+    edges: torch.Tensor  # (N, M+1) bin edges in domain coordinates
+    t_mid: torch.Tensor  # (N, M) ray distance of bin midpoints
+    deltas: torch.Tensor  # (N, M) bin widths [m]
+    points: torch.Tensor  # (N, M, 3) world
+
+    def bin_bounds(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """Lower and upper domain coordinates (N, M) of each bin."""
+        return self.edges[:, :-1], self.edges[:, 1:]
+
+    @classmethod
+    def from_edges(
+        cls, rays: RayBundle, intervals: RayIntervals, edges: torch.Tensor
+    ) -> RaySamples:
+        mid = 0.5 * (edges[:, 1:] + edges[:, :-1])
+        t_mid = intervals.domain_to_t(mid)
+        points = rays.origins[:, None, :] + t_mid[..., None] * rays.directions[:, None, :]
+        return cls(intervals, edges, t_mid, edges[:, 1:] - edges[:, :-1], points)
+
+
+def ray_intervals(
+    field: RadianceField, rays: RayBundle, near_m: float, boxes: Sequence[OrientedBox] = ()
+) -> RayIntervals:
+    """Valid part of each ray: inside the scene box, beyond ``near_m``, outside every removal box."""
+    t0, t1 = ray_aabb(rays.origins, rays.directions, field.aabb)
+    t0 = t0.clamp_min(near_m)
+    intervals = near_far_intervals(t0, torch.maximum(t1, t0))
+    return cut_boxes(intervals, rays.origins, rays.directions, boxes) if boxes else intervals
+
+
+def sample_rays(
+    field: RadianceField,
+    grid: OccupancyGrid | None,
+    rays: RayBundle,
+    cfg: RenderConfig,
+    boxes: Sequence[OrientedBox] = (),
+    jitter: bool = False,
+    generator: torch.Generator | None = None,
+) -> RaySamples:
+    """Two-stage sampling on each ray's valid domain (paper Sec. III-A).
+
+    1. Coarse: with a grid, march ``n_march_samples`` even bins, skip those in empty cells
+       and query the density (no gradient) of up to ``n_coarse_samples`` occupied ones,
+       spread over all of them; without a grid, query ``n_coarse_samples`` even bins.
+       Empty bins have zero optical depth.
+    2. Fine: ``n_samples`` bins by PDF resampling of those weights on the same domain.
+    """
+    intervals = ray_intervals(field, rays, cfg.near_m, boxes)
+    total = intervals.total
+    n = len(rays)
+    device = total.device
+    if grid is None:
+        edges = uniform_edges(total, cfg.n_coarse_samples, jitter, generator)
+        coarse = RaySamples.from_edges(rays, intervals, edges)
+        with torch.no_grad():
+            sigma = field.density(coarse.points.reshape(-1, 3)).reshape(coarse.t_mid.shape)
+        weights = render_weights(sigma, coarse.deltas)
+    else:
+        k, m = cfg.n_march_samples, min(cfg.n_coarse_samples, cfg.n_march_samples)
+        step = total / k
+        offset = (
+            torch.rand(n, 1, device=device, generator=generator)
+            if jitter
+            else torch.full((n, 1), 0.5, device=device)
+        )
+        arange = torch.arange(k, device=device)
+        s_mid = (arange[None, :] + offset) * step[:, None]  # (N, K)
+        edges = torch.cat(
+            [
+                torch.zeros_like(total)[:, None],
+                (arange[None, 1:] + offset - 0.5) * step[:, None],
+                total[:, None],
+            ],
+            -1,
+        )
+        t_mid = intervals.domain_to_t(s_mid)
+        pts = rays.origins[:, None, :] + t_mid[..., None] * rays.directions[:, None, :]
+        occupied = grid.is_occupied(pts.reshape(-1, 3)).reshape(n, k) & (step[:, None] > 0)
+        # Query m of the c occupied candidates, spread evenly over them (all when c <= m), and
+        # give every occupied bin the density of the queried candidate that represents it.
+        cum = torch.cumsum(occupied.long(), -1)  # (N, K)
+        count = cum[:, -1:].float().clamp_min(m)  # max(c, m)
+        rank_sel = torch.floor(torch.arange(m, device=device)[None, :] * count / m).long()  # (N, m)
+        chosen = rank_sel < cum[:, -1:]
+        idx = torch.searchsorted(cum, rank_sel + 1).clamp_max(k - 1)
+        sel_pts = torch.gather(pts, 1, idx[..., None].expand(n, m, 3))[chosen]
+        sigma_sel = torch.zeros(n, m, device=device)
+        with torch.no_grad():
+            sigma_sel[chosen] = field.density(sel_pts)
+        owner = torch.floor((cum - 1).clamp_min(0).float() * m / count).long().clamp_max(m - 1)
+        sigma = torch.gather(sigma_sel, 1, owner) * occupied
+        weights = render_weights(sigma, (edges[:, 1:] - edges[:, :-1]))
+    fine = pdf_edges(edges, weights, cfg.n_samples, jitter, generator)
+    return RaySamples.from_edges(rays, intervals, fine)
+
+
+def render_rays(
+    field: RadianceField,
+    grid: OccupancyGrid | None,
+    rays: RayBundle,
+    cfg: RenderConfig,
+    background: torch.Tensor,
+    boxes: Sequence[OrientedBox] = (),
+    jitter: bool = False,
+    generator: torch.Generator | None = None,
+) -> dict[str, torch.Tensor]:
+    """rgb (N,3), depth (N,) ray distance [m], depth_z (N,) z-depth [m], accumulation (N,),
+    weights (N,M) and the samples. With a grid, samples in empty cells skip the network."""
+    samples = sample_rays(field, grid, rays, cfg, boxes, jitter, generator)
+    n, m = samples.t_mid.shape
+    pts = samples.points.reshape(-1, 3)
+    dirs = rays.directions[:, None, :].expand(n, m, 3).reshape(-1, 3)
+    keep = samples.deltas.reshape(-1) > 0
+    if grid is not None:
+        keep &= grid.is_occupied(pts)
+    idx = torch.nonzero(keep)[:, 0]
+    sigma_k, rgb_k = field(pts[idx], dirs[idx])
+    sigma = torch.zeros(n * m, device=pts.device, dtype=sigma_k.dtype).index_put((idx,), sigma_k)
+    rgb = torch.zeros(n * m, 3, device=pts.device, dtype=rgb_k.dtype).index_put((idx,), rgb_k)
+    weights = render_weights(sigma.reshape(n, m), samples.deltas)
+    out = composite(weights, rgb.reshape(n, m, 3), samples.t_mid, background)
+    out["depth_z"] = out["depth"] * rays.z_scale
+    out["weights"] = weights
+    lo, hi = samples.bin_bounds()
+    out["s_lo"], out["s_hi"] = lo, hi
+    out["sigma"] = sigma.reshape(n, m)
+    out["t_mid"] = samples.t_mid
+    out["n_network_samples"] = torch.tensor(len(idx))
+    return out
+
+
+@torch.no_grad()
+def render_image(
+    field: RadianceField,
+    grid: OccupancyGrid | None,
+    cameras: CameraTensors,
+    index: int,
+    height: int,
+    width: int,
+    cfg: RenderConfig,
+    background: torch.Tensor,
+    boxes: Sequence[OrientedBox] = (),
+) -> dict[str, torch.Tensor]:
+    """rgb (H,W,3), depth_z (H,W) [m], accumulation (H,W) of camera ``index``."""
+    rays = cameras.image_rays(index, height, width)
+    parts: dict[str, list[torch.Tensor]] = {"rgb": [], "depth_z": [], "accumulation": []}
+    for start in range(0, len(rays), cfg.chunk_rays):
+        out = render_rays(field, grid, rays[start : start + cfg.chunk_rays], cfg, background, boxes)
+        for key in parts:
+            parts[key].append(out[key])
+    return {
+        "rgb": torch.cat(parts["rgb"]).reshape(height, width, 3),
+        "depth_z": torch.cat(parts["depth_z"]).reshape(height, width),
+        "accumulation": torch.cat(parts["accumulation"]).reshape(height, width),
+    }

@@ -1,0 +1,164 @@
+"""A scene on disk: one version of (radiance field + occupancy grid + metadata).
+
+Layout of a scene directory::
+
+    scene.json            metadata: configs, scene box, background, training state, lineage
+    field.safetensors     field weights and the occupancy grid
+    optimizer.safetensors Adam state (only while training may resume)
+
+Written atomically; configs are JSON, tensors safetensors (nothing is pickled).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+import uuid
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+from pydantic import TypeAdapter, ValidationError
+from safetensors.torch import load_file, save_file
+
+from neoedit.errors import NeoError
+from neoedit.fields.radiance import RadianceField, RadianceFieldConfig
+from neoedit.rendering.occupancy import OccupancyGrid, OccupancyGridConfig
+from neoedit.rendering.renderer import RenderConfig
+from neoedit.utils.io import atomic_directory, atomic_write_json
+
+FORMAT = "neoedit.scene/1"
+
+
+@dataclass
+class SceneMeta:
+    data_path: str
+    """Dataset the scene was trained on (its cameras are reused by render/eval)."""
+    aabb_m: list[list[float]]
+    background_rgb: list[float]
+    field: RadianceFieldConfig = dataclasses.field(default_factory=RadianceFieldConfig)
+    grid: OccupancyGridConfig = dataclasses.field(default_factory=OccupancyGridConfig)
+    render: RenderConfig = dataclasses.field(default_factory=RenderConfig)
+    train: dict[str, Any] = dataclasses.field(default_factory=dict)
+    step: int = 0
+    train_seconds: float = 0.0
+    history: list[dict[str, Any]] = dataclasses.field(default_factory=list)
+    """Training log: step, seconds, train/eval PSNR."""
+    version_id: str = dataclasses.field(default_factory=lambda: uuid.uuid4().hex[:12])
+    parent: str | None = None
+    created: str = dataclasses.field(default_factory=lambda: time.strftime("%Y-%m-%dT%H:%M:%S"))
+    format: str = FORMAT
+
+
+@dataclass
+class Scene:
+    field: RadianceField
+    grid: OccupancyGrid
+    meta: SceneMeta
+
+    @property
+    def background(self) -> torch.Tensor:
+        return torch.tensor(
+            self.meta.background_rgb, dtype=torch.float32, device=self.field.aabb.device
+        )
+
+    @classmethod
+    def create(cls, meta: SceneMeta, device: torch.device | str = "cpu", seed: int = 0) -> Scene:
+        aabb = torch.tensor(meta.aabb_m, dtype=torch.float32)
+        field_ = RadianceField(meta.field, aabb, seed=seed).to(device)
+        grid = OccupancyGrid(meta.grid, aabb).to(device)
+        return cls(field_, grid, meta)
+
+
+def save_scene(path: Path, scene: Scene, optimizer: torch.optim.Optimizer | None = None) -> None:
+    """Write (or atomically replace) a scene directory."""
+    with atomic_directory(Path(path), overwrite=True) as tmp:
+        tensors = {
+            f"field.{k}": v.detach().cpu().contiguous() for k, v in scene.field.state_dict().items()
+        }
+        tensors["grid.density"] = scene.grid.density.detach().cpu().contiguous()
+        tensors["grid.n_updates"] = scene.grid.n_updates.detach().cpu().reshape(1)
+        save_file(tensors, str(tmp / "field.safetensors"))
+        if optimizer is not None:
+            save_file(
+                _optimizer_tensors(scene.field, optimizer), str(tmp / "optimizer.safetensors")
+            )
+        atomic_write_json(tmp / "scene.json", dataclasses.asdict(scene.meta))
+
+
+def load_scene(path: Path, device: torch.device | str = "cpu") -> Scene:
+    path = Path(path)
+    meta_path = path / "scene.json"
+    if not path.is_dir():
+        raise NeoError(f"scene not found: {path}")
+    if not meta_path.is_file():
+        raise NeoError(f"{path} is not a neoedit scene (no scene.json)")
+    try:
+        raw = json.loads(meta_path.read_text())
+    except json.JSONDecodeError as e:
+        raise NeoError(f"{meta_path} is not valid JSON: {e}") from None
+    if not isinstance(raw, dict) or raw.get("format") != FORMAT:
+        raise NeoError(
+            f"{meta_path}: unsupported scene format {raw.get('format') if isinstance(raw, dict) else None!r} (expected {FORMAT})"
+        )
+    try:
+        meta = TypeAdapter(SceneMeta).validate_python(raw)
+    except ValidationError as e:
+        raise NeoError(
+            f"{meta_path}: malformed metadata: {e.errors()[0]['loc']}: {e.errors()[0]['msg']}"
+        ) from None
+    weights = path / "field.safetensors"
+    if not weights.is_file():
+        raise NeoError(f"{path}: missing field.safetensors")
+    try:
+        tensors = load_file(str(weights))
+    except Exception as e:  # safetensors raises its own error types for corrupt files
+        raise NeoError(f"{weights}: cannot read weights: {e}") from None
+    scene = Scene.create(meta, device="cpu")
+    state = {k.removeprefix("field."): v for k, v in tensors.items() if k.startswith("field.")}
+    try:
+        scene.field.load_state_dict(state)
+        scene.grid.density.copy_(tensors["grid.density"])
+        scene.grid.n_updates.copy_(tensors["grid.n_updates"][0])
+        scene.grid.refresh_mask()
+    except (RuntimeError, KeyError) as e:
+        raise NeoError(f"{weights}: weights do not match the scene config: {e}") from None
+    scene.field.to(device)
+    scene.grid.to(device)
+    return scene
+
+
+def _optimizer_tensors(
+    model: torch.nn.Module, optimizer: torch.optim.Optimizer
+) -> dict[str, torch.Tensor]:
+    names = {id(p): n for n, p in model.named_parameters()}
+    out = {}
+    for p, state in optimizer.state.items():
+        for key, value in state.items():
+            if torch.is_tensor(value):
+                out[f"{names[id(p)]}.{key}"] = (
+                    value.detach().cpu().contiguous().reshape(value.shape)
+                )
+    return out
+
+
+def load_optimizer_state(
+    path: Path, model: torch.nn.Module, optimizer: torch.optim.Optimizer
+) -> bool:
+    """Restore Adam state saved by :func:`save_scene`; False if the scene has none."""
+    file = Path(path) / "optimizer.safetensors"
+    if not file.is_file():
+        return False
+    tensors = load_file(str(file))
+    device = next(model.parameters()).device
+    for name, p in model.named_parameters():
+        state = {
+            k.removeprefix(f"{name}."): v.to(device)
+            for k, v in tensors.items()
+            if k.rsplit(".", 1)[0] == name
+        }
+        if state:
+            optimizer.state[p] = state
+    return True

@@ -1,0 +1,248 @@
+"""Training of the scene field from posed images (batched rays, Adam, live PSNR, checkpoints)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from neoedit.cameras.rays import CameraTensors
+from neoedit.data import SceneData, load_scene_data
+from neoedit.errors import NeoError
+from neoedit.fields.radiance import RadianceFieldConfig
+from neoedit.rendering.occupancy import OccupancyGridConfig
+from neoedit.rendering.renderer import RenderConfig, render_image, render_rays
+from neoedit.rendering.volume import distortion_loss
+from neoedit.scene import Scene, SceneMeta, load_optimizer_state, load_scene, save_scene
+from neoedit.utils.progress import make_progress
+
+
+@dataclass
+class TrainConfig:
+    max_steps: int = 3000
+    """Stop after this many optimisation steps."""
+    max_minutes: float | None = None
+    """Also stop after this much training time (periodic evaluation excluded)."""
+    rays_per_batch: int = 2048
+    """Rays per step, drawn at random from all training pixels."""
+    lr: float = 1e-2
+    """Adam learning rate at the start (decays exponentially to lr * lr_final_factor)."""
+    lr_final_factor: float = 0.1
+    weight_decay_mlp: float = 1e-6
+    distortion_loss_weight: float = 2e-3
+    """Weight of the mip-NeRF 360 distortion loss (suppresses floaters; 0 = off)."""
+    random_background: bool = True
+    """With RGBA data, train over random background colours (transparent pixels stay empty)."""
+    depth_loss_weight: float = 0.0
+    """Weight of an L1 loss on z-depth where the data has metric depth (0 = images only)."""
+    eval_every: int = 500
+    """Steps between held-out evaluations (0 = never)."""
+    eval_views: int = 3
+    """Held-out views rendered at each evaluation."""
+    checkpoint_every: int = 1000
+    """Steps between checkpoints (0 = only at the end)."""
+    seed: int = 0
+
+
+def resolve_device(name: str) -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name.startswith("cuda") and not torch.cuda.is_available():
+        raise NeoError("--device cuda requested but CUDA is not available")
+    return torch.device(name)
+
+
+def scene_box(data: SceneData, margin_m: float = 0.02) -> list[list[float]]:
+    """Scene box: the dataset's ``scene_aabb`` if given, else the bounds of the cameras."""
+    box = data.scene_aabb_m if data.scene_aabb_m is not None else data.camera_aabb_m()
+    return [(box[0] - margin_m).tolist(), (box[1] + margin_m).tolist()]
+
+
+def psnr(mse: float) -> float:
+    return -10.0 * math.log10(max(mse, 1e-12))
+
+
+class Trainer:
+    def __init__(
+        self, data: SceneData, scene: Scene, cfg: TrainConfig, out: Path, device: torch.device
+    ):
+        self.data, self.scene, self.cfg, self.out, self.device = data, scene, cfg, out, device
+        self.cams = CameraTensors(data.cameras, device)
+        train = data.split["train"]
+        self.train_idx = torch.as_tensor(train, device=device)
+        self.images = torch.as_tensor(data.images[train], device=device)  # (T, H, W, 3) uint8
+        # Known opacity (RGBA data) -> train over random background colours, so the field
+        # cannot paint the background colour into the scene as fog.
+        self.alpha = None
+        if cfg.random_background and data.alpha is not None:
+            self.alpha = torch.as_tensor(data.alpha[train], device=device)
+        self.depth = None
+        if cfg.depth_loss_weight > 0 and data.depth_m is not None:
+            self.depth = torch.as_tensor(data.depth_m[train], device=device)
+        self.generator = torch.Generator(device=device).manual_seed(cfg.seed)
+        enc = list(scene.field.encoding.parameters())
+        mlp = [p for n, p in scene.field.named_parameters() if not n.startswith("encoding.")]
+        self.optimizer = torch.optim.Adam(
+            [
+                {"params": enc, "weight_decay": 0.0},
+                {"params": mlp, "weight_decay": cfg.weight_decay_mlp},
+            ],
+            lr=cfg.lr,
+            betas=(0.9, 0.99),
+            eps=1e-15,
+            foreach=True,
+        )
+        gamma = cfg.lr_final_factor ** (1.0 / max(cfg.max_steps, 1))
+        self.scheduler = torch.optim.lr_scheduler.LambdaLR(
+            self.optimizer, lambda s: gamma ** (s + scene.meta.step)
+        )
+
+    def batch(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Random training pixels: image index, row, column and target colour (N,3) in [0,1]."""
+        t, h, w = self.images.shape[:3]
+        n = self.cfg.rays_per_batch
+        img = torch.randint(0, t, (n,), device=self.device, generator=self.generator)
+        v = torch.randint(0, h, (n,), device=self.device, generator=self.generator)
+        u = torch.randint(0, w, (n,), device=self.device, generator=self.generator)
+        return img, v, u, self.images[img, v, u].float() / 255.0
+
+    def step(self, step: int) -> float:
+        field, grid, meta = self.scene.field, self.scene.grid, self.scene.meta
+        if step % meta.grid.update_every == 0:
+            grid.update(field.density, step, self.generator)
+        img, v, u, target = self.batch()
+        rays = self.cams.rays(self.train_idx[img], v, u)
+        background = self.scene.background
+        if self.alpha is not None:
+            # the data was composited over the scene background: swap it for a random colour
+            transparency = 1.0 - self.alpha[img, v, u].float()[:, None] / 255.0
+            background = torch.rand(target.shape, device=self.device, generator=self.generator)
+            target = target + transparency * (background - self.scene.background)
+        use_grid = grid if step >= meta.grid.warmup_steps else None
+        out = render_rays(
+            field, use_grid, rays, meta.render, background, jitter=True, generator=self.generator
+        )
+        mse = torch.mean((out["rgb"] - target) ** 2)
+        loss = mse
+        if self.cfg.distortion_loss_weight > 0:
+            loss = (
+                loss
+                + self.cfg.distortion_loss_weight
+                * distortion_loss(out["weights"], out["s_lo"], out["s_hi"]).mean()
+            )
+        if self.depth is not None:
+            gt = self.depth[img, v, u]
+            valid = gt > 0
+            if valid.any():
+                loss = loss + self.cfg.depth_loss_weight * torch.mean(
+                    torch.abs(out["depth_z"][valid] - gt[valid])
+                )
+        self.optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        self.optimizer.step()
+        self.scheduler.step()
+        return float(mse.detach())
+
+    @torch.no_grad()
+    def evaluate(self) -> float | None:
+        test = self.data.split.get("test", np.empty(0, np.int64))
+        if len(test) == 0 or self.cfg.eval_views == 0:
+            return None
+        chosen = test[
+            np.linspace(0, len(test) - 1, min(self.cfg.eval_views, len(test))).round().astype(int)
+        ]
+        errs = []
+        for i in chosen:
+            out = render_image(
+                self.scene.field,
+                self.scene.grid,
+                self.cams,
+                int(i),
+                self.data.height,
+                self.data.width,
+                self.scene.meta.render,
+                self.scene.background,
+            )
+            gt = torch.as_tensor(self.data.images[i], device=self.device).float() / 255.0
+            errs.append(float(torch.mean((out["rgb"] - gt) ** 2)))
+        return psnr(float(np.mean(errs)))
+
+    def run(self) -> Scene:
+        meta, cfg = self.scene.meta, self.cfg
+        t_train = meta.train_seconds
+        ema = None
+        with make_progress() as progress:
+            task = progress.add_task("train", total=cfg.max_steps, completed=meta.step, status="")
+            for step in range(meta.step, cfg.max_steps):
+                t0 = time.perf_counter()
+                mse = self.step(step)
+                t_train += time.perf_counter() - t0
+                ema = mse if ema is None else 0.9 * ema + 0.1 * mse
+                meta.step, meta.train_seconds = step + 1, t_train
+                last = step + 1 == cfg.max_steps or (
+                    cfg.max_minutes is not None and t_train >= 60 * cfg.max_minutes
+                )
+                if (cfg.eval_every and (step + 1) % cfg.eval_every == 0) or last:
+                    eval_psnr = self.evaluate()
+                    meta.history.append(
+                        {
+                            "step": step + 1,
+                            "seconds": round(t_train, 2),
+                            "train_psnr": round(psnr(ema), 3),
+                            "eval_psnr": None if eval_psnr is None else round(eval_psnr, 3),
+                        }
+                    )
+                progress.update(
+                    task,
+                    completed=step + 1,
+                    status=f"PSNR {psnr(ema):5.2f} dB"
+                    + (f" | eval {meta.history[-1]['eval_psnr']} dB" if meta.history else ""),
+                )
+                if last or (cfg.checkpoint_every and (step + 1) % cfg.checkpoint_every == 0):
+                    save_scene(self.out, self.scene, self.optimizer)
+                if last:
+                    break
+        return self.scene
+
+
+def train(
+    data_path: Path,
+    out: Path,
+    cfg: TrainConfig,
+    field_cfg: RadianceFieldConfig | None = None,
+    render_cfg: RenderConfig | None = None,
+    grid_cfg: OccupancyGridConfig | None = None,
+    device: str = "auto",
+    resume: bool = False,
+) -> Scene:
+    """Train a scene on a dataset and write it to ``out`` (resume continues a saved run)."""
+    dev = resolve_device(device)
+    torch.manual_seed(cfg.seed)
+    data = load_scene_data(data_path)
+    if resume:
+        scene = load_scene(out, dev)
+        scene.meta.train = dataclasses.asdict(cfg)
+    else:
+        if (Path(out) / "scene.json").exists():
+            raise NeoError(
+                f"{out} already holds a scene; pass --resume to continue it or choose another --out"
+            )
+        meta = SceneMeta(
+            data_path=str(Path(data_path).resolve()),
+            aabb_m=scene_box(data),
+            background_rgb=list(data.background_rgb or (1.0, 1.0, 1.0)),
+            field=field_cfg or RadianceFieldConfig(),
+            grid=grid_cfg or OccupancyGridConfig(),
+            render=render_cfg or RenderConfig(),
+            train=dataclasses.asdict(cfg),
+        )
+        scene = Scene.create(meta, dev, seed=cfg.seed)
+    trainer = Trainer(data, scene, cfg, Path(out), dev)
+    if resume:
+        load_optimizer_state(out, scene.field, trainer.optimizer)
+    return trainer.run()
