@@ -35,12 +35,30 @@ class Cameras:
     """A set of N pinhole cameras (intrinsics in pixels, per camera)."""
 
     camera_to_world: np.ndarray  # (N, 4, 4) float64, OpenGL convention
-    fx: np.ndarray  # (N,)
+    fx: np.ndarray  # (N,) pixels; a scalar is broadcast to all cameras
     fy: np.ndarray  # (N,)
     cx: np.ndarray  # (N,)
     cy: np.ndarray  # (N,)
     width: np.ndarray  # (N,) int
     height: np.ndarray  # (N,) int
+
+    @classmethod
+    def shared(
+        cls,
+        camera_to_world: np.ndarray,
+        fx: float,
+        fy: float,
+        cx: float,
+        cy: float,
+        width: int,
+        height: int,
+    ) -> Cameras:
+        """N cameras with one set of intrinsics."""
+        n = len(np.asarray(camera_to_world).reshape(-1, 4, 4))
+        full = lambda v: np.full(n, v)  # noqa: E731
+        return cls(
+            camera_to_world, full(fx), full(fy), full(cx), full(cy), full(width), full(height)
+        )
 
     def __post_init__(self) -> None:
         self.camera_to_world = np.asarray(self.camera_to_world, dtype=np.float64).reshape(-1, 4, 4)

@@ -60,7 +60,15 @@ def load_blender(
         raise DataError(f"{root}: all images must share one size")
     h, w = images[0].shape[:2]
     f = np.asarray(focal)
-    cameras = Cameras(np.stack(poses), f, f, w / 2.0, h / 2.0, w, h)
+    cameras = Cameras(
+        np.stack(poses),
+        f,
+        f,
+        np.full(len(f), w / 2.0),
+        np.full(len(f), h / 2.0),
+        np.full(len(f), w),
+        np.full(len(f), h),
+    )
     split_idx = {k: np.asarray(v, dtype=np.int64) for k, v in split.items()}
     if "test" not in split_idx:
         split_idx["test"] = split_idx.get("val", np.empty(0, np.int64))

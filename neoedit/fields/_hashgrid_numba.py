@@ -16,7 +16,7 @@ P2 = np.uint64(805459861)
 
 
 @numba.njit(inline="always")
-def _row(cx: int, cy: int, cz: int, res: int, table_size: int) -> int:
+def _row(cx: int, cy: int, cz: int, res: int, table_size: int) -> np.int64:
     side = res + 1
     if side * side * side <= table_size:
         return np.int64(cx + cy * side + cz * side * side)

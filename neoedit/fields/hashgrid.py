@@ -83,7 +83,7 @@ class _NumbaEncode(torch.autograd.Function):
     @staticmethod
     def forward(
         ctx, x: torch.Tensor, table: torch.Tensor, resolutions: torch.Tensor
-    ) -> torch.Tensor:  # type: ignore[override]
+    ) -> torch.Tensor:
         from neoedit.fields import _hashgrid_numba as kernels
 
         x = x.detach().clamp(0.0, 1.0 - 1e-6).contiguous()
@@ -93,7 +93,7 @@ class _NumbaEncode(torch.autograd.Function):
         return torch.from_numpy(out).reshape(x.shape[0], -1)
 
     @staticmethod
-    def backward(ctx, grad_out: torch.Tensor):  # type: ignore[override]
+    def backward(ctx, grad_out: torch.Tensor):
         from neoedit.fields import _hashgrid_numba as kernels
 
         x, resolutions = ctx.saved_tensors
@@ -117,6 +117,8 @@ def numba_available() -> bool:
 
 class HashGridEncoding(nn.Module):
     """x (N,3) in [0,1]^3 -> features (N, L*F)."""
+
+    resolutions: torch.Tensor  # (L,) grid resolution per level
 
     def __init__(self, cfg: HashGridConfig, seed: int = 0):
         super().__init__()

@@ -33,17 +33,19 @@ class TruncExp(torch.autograd.Function):
     """exp with a gradient clamped for stability (Instant-NGP)."""
 
     @staticmethod
-    def forward(ctx, x: torch.Tensor) -> torch.Tensor:  # type: ignore[override]
+    def forward(ctx, x: torch.Tensor) -> torch.Tensor:
         ctx.save_for_backward(x)
         return torch.exp(x)
 
     @staticmethod
-    def backward(ctx, g: torch.Tensor) -> torch.Tensor:  # type: ignore[override]
+    def backward(ctx, g: torch.Tensor) -> torch.Tensor:
         (x,) = ctx.saved_tensors
         return g * torch.exp(x.clamp(-15.0, 15.0))
 
 
 class RadianceField(nn.Module):
+    aabb: torch.Tensor  # (2, 3) scene box, world metres
+
     def __init__(self, cfg: RadianceFieldConfig, aabb: torch.Tensor, seed: int = 0):
         super().__init__()
         self.cfg = cfg
@@ -52,13 +54,12 @@ class RadianceField(nn.Module):
             "aabb", torch.as_tensor(aabb, dtype=torch.float32).clone()
         )  # (2,3) world metres
         self.encoding = HashGridEncoding(cfg.hashgrid, seed=seed)
-        self.density_mlp = nn.Sequential(
-            nn.Linear(self.encoding.output_dim, cfg.hidden_dim),
-            nn.ReLU(),
-            nn.Linear(cfg.hidden_dim, 1 + cfg.geo_feat_dim),
-        )
+        density_head = nn.Linear(cfg.hidden_dim, 1 + cfg.geo_feat_dim)
         with torch.no_grad():
-            self.density_mlp[-1].bias[0] = cfg.density_bias
+            density_head.bias[0] = cfg.density_bias
+        self.density_mlp = nn.Sequential(
+            nn.Linear(self.encoding.output_dim, cfg.hidden_dim), nn.ReLU(), density_head
+        )
         self.color_mlp = nn.Sequential(
             nn.Linear(cfg.geo_feat_dim + 16, cfg.hidden_dim_color),
             nn.ReLU(),

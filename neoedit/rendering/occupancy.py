@@ -31,6 +31,11 @@ class OccupancyGridConfig:
 
 
 class OccupancyGrid(nn.Module):
+    aabb: torch.Tensor  # (2, 3) world metres
+    density: torch.Tensor  # (R, R, R) cached density [1/m]
+    n_updates: torch.Tensor  # () number of updates so far
+    occupied: torch.Tensor  # (R, R, R) bool, derived from density (not saved)
+
     def __init__(self, cfg: OccupancyGridConfig, aabb: torch.Tensor):
         super().__init__()
         self.cfg = cfg
@@ -51,7 +56,7 @@ class OccupancyGrid(nn.Module):
         above = (self.density > thresh).float()[None, None]
         self.occupied.copy_(torch.nn.functional.max_pool3d(above, 3, stride=1, padding=1)[0, 0] > 0)
 
-    def _load_from_state_dict(self, *args, **kwargs):  # type: ignore[no-untyped-def]
+    def _load_from_state_dict(self, *args, **kwargs):  # noqa: ANN002, ANN003
         super()._load_from_state_dict(*args, **kwargs)
         self.refresh_mask()
 

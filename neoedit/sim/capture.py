@@ -61,7 +61,9 @@ def render_view(
 
 def _backproject(c2w: np.ndarray, scan: ScanSpec, depth: np.ndarray) -> np.ndarray:
     k = intrinsics(scan)
-    cams = Cameras(c2w[None], k["fl_x"], k["fl_y"], k["cx"], k["cy"], scan.width, scan.height)
+    cams = Cameras.shared(
+        c2w[None], k["fl_x"], k["fl_y"], k["cx"], k["cy"], scan.width, scan.height
+    )
     return cams.backproject_depth(0, depth)[depth > 0]
 
 
