@@ -4,7 +4,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.neoedit-installed
 DEMO_OUT ?= outputs/demo
 
-.PHONY: setup demo test lint bench-sim clean
+.PHONY: setup demo test lint bench-sim bench-field clean
 
 setup: $(STAMP)
 
@@ -17,9 +17,16 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install -q -e ".[dev]"
 	touch $(STAMP)
 
+# The end-to-end demo on embedded defaults: simulate, train, render, evaluate.
 demo: $(STAMP)
-	$(VENV)/bin/neo sim benchmark --profile small --only removal_1 pick_place_1 --out $(DEMO_OUT)/sim
-	@echo "contact sheets:"; ls $(DEMO_OUT)/sim/*/*/contact_sheet.png
+	$(VENV)/bin/neo sim scene examples/demo_scene.yaml --out $(DEMO_OUT)/sim --overwrite
+	rm -rf $(DEMO_OUT)/scene $(DEMO_OUT)/render $(DEMO_OUT)/eval_images
+	$(VENV)/bin/neo train $(DEMO_OUT)/sim/pre --out $(DEMO_OUT)/scene --max-steps 600 --eval-every 200
+	$(VENV)/bin/neo render $(DEMO_OUT)/scene --views spiral --n-frames 36 --video --out $(DEMO_OUT)/render
+	$(VENV)/bin/neo eval $(DEMO_OUT)/scene --data $(DEMO_OUT)/sim/pre --json $(DEMO_OUT)/eval.json --images $(DEMO_OUT)/eval_images
+	@echo "contact sheets:  $(DEMO_OUT)/sim/*/contact_sheet.png"
+	@echo "spiral video:    $(DEMO_OUT)/render/video.gif"
+	@echo "held-out views (render | ground truth): $(DEMO_OUT)/eval_images/"
 
 test: $(STAMP)
 	$(PY) -m pytest tests
@@ -31,6 +38,10 @@ lint: $(STAMP)
 
 bench-sim: $(STAMP)
 	$(PY) benchmarks/bench_sim.py --profile standard --out outputs/neosim_standard
+
+bench-field: bench-sim
+	$(PY) benchmarks/bench_field.py encoding
+	$(PY) benchmarks/bench_field.py train --scenes removal_1 removal_4 --minutes 4 --eval-every 200
 
 clean:
 	rm -rf $(VENV) outputs build *.egg-info

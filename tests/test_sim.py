@@ -168,3 +168,10 @@ def test_missing_asset_leaves_no_partial_output(tmp_path: Path):
     with pytest.raises(SpecError, match="asset not found"):
         simulate_scene(spec, tmp_path / "out")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_example_spec_is_valid():
+    from neoedit.sim.spec import load_scene_spec
+
+    spec = load_scene_spec(Path(__file__).parent.parent / "examples" / "demo_scene.yaml")
+    assert spec.setup.name == "panda_wood" and [a.type for a in spec.actions] == ["remove"]

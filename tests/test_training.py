@@ -12,6 +12,7 @@ from neoedit.cameras.rays import CameraTensors
 from neoedit.cli import main
 from neoedit.data import load_scene_data
 from neoedit.errors import NeoError
+from neoedit.eval.evaluate import render_views
 from neoedit.eval.metrics import psnr, reprojection_error, ssim
 from neoedit.eval.regions import box_mask
 from neoedit.fields.hashgrid import HashGridConfig
@@ -53,47 +54,32 @@ def trained(sim_root: Path, tmp_path_factory) -> Path:
 def test_tiny_scene_trains_to_psnr(trained: Path, sim_root: Path):
     scene = load_scene(trained)
     data = load_scene_data(sim_root / "removal_1" / "pre")
-    cams = CameraTensors(data.cameras)
-    scores = []
-    for i in data.split["test"]:
-        out = render_image(
-            scene.field,
-            scene.grid,
-            cams,
-            int(i),
-            data.height,
-            data.width,
-            scene.meta.render,
-            scene.background,
-        )
-        scores.append(psnr(out["rgb"].numpy(), data.images[i] / 255.0))
+    test, train_views = list(data.split["test"]), list(data.split["train"][:3])
+    renders = render_views(scene, data, test + train_views)
+    scores = [
+        psnr(r["rgb"], data.images[i] / 255.0)
+        for r, i in zip(renders, test + train_views, strict=True)
+    ]
     # 10 training views of 64x48 px: held-out views are well above a flat-colour guess
     flat = [
         psnr(
             np.broadcast_to(data.images[i].reshape(-1, 3).mean(0) / 255.0, data.images[i].shape),
             data.images[i] / 255.0,
         )
-        for i in data.split["test"]
+        for i in test
     ]
-    assert np.mean(scores) > 20.0 and np.mean(scores) > np.mean(flat) + 5.0, (scores, flat)
-    train_scores = []
-    for i in data.split["train"][:3]:
-        out = render_image(
-            scene.field,
-            scene.grid,
-            cams,
-            int(i),
-            data.height,
-            data.width,
-            scene.meta.render,
-            scene.background,
-        )
-        train_scores.append(psnr(out["rgb"].numpy(), data.images[i] / 255.0))
-    assert np.mean(train_scores) > 21.0, train_scores
+    held_out = np.mean(scores[: len(test)])
+    assert held_out > 20.0 and held_out > np.mean(flat) + 5.0, (scores, flat)
+    assert np.mean(scores[len(test) :]) > 21.0, scores
+    assert scene.meta.history[-1]["eval_psnr"] > 20.0
     # the occupancy grid has learned where the scene is: the true surfaces are in occupied
     # cells, while a good part of the box is marked empty
-    surface = np.concatenate([data.cameras.backproject_depth(i, data.depth_m[i])[data.depth_m[i] > 0] for i in range(3)])
-    assert scene.grid.is_occupied(torch.as_tensor(surface, dtype=torch.float32)).float().mean() > 0.97
+    surface = np.concatenate(
+        [data.cameras.backproject_depth(i, data.depth_m[i])[data.depth_m[i] > 0] for i in range(3)]
+    )
+    assert (
+        scene.grid.is_occupied(torch.as_tensor(surface, dtype=torch.float32)).float().mean() > 0.97
+    )
     assert scene.grid.occupied.float().mean() < 0.7
 
 
@@ -306,3 +292,18 @@ def test_cli_train_render_eval(sim_root: Path, tmp_path: Path, capsys):
     assert (tmp_path / "v" / "video.gif").is_file()
     assert main(["eval", str(tmp_path / "nope"), "--data", str(data)]) == 2
     assert "scene not found" in capsys.readouterr().err
+
+
+def test_scene_box_without_dataset_box_holds_the_surfaces(sim_root: Path):
+    from neoedit.training.trainer import scene_box
+
+    data = load_scene_data(sim_root / "removal_1" / "pre")
+    data.scene_aabb_m = None  # as for Blender or COLMAP data
+    lo, hi = (np.asarray(v) for v in scene_box(data))
+    pts = np.concatenate(
+        [
+            data.cameras.backproject_depth(i, data.depth_m[i])[data.depth_m[i] > 0]
+            for i in range(len(data))
+        ]
+    )
+    assert np.all((pts >= lo) & (pts <= hi), axis=1).mean() > 0.99

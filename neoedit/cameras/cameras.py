@@ -121,6 +121,19 @@ class Cameras:
         return np.stack([u, v], axis=-1), depth
 
 
+def orbit_center(cameras: Cameras) -> np.ndarray:
+    """Least-squares point closest to all optical axes (where the cameras look)."""
+    origins = cameras.camera_to_world[:, :3, 3]
+    dirs = -cameras.camera_to_world[:, :3, 2]
+    a = np.zeros((3, 3))
+    b = np.zeros(3)
+    for o, d in zip(origins, dirs, strict=True):
+        p = np.eye(3) - np.outer(d, d)
+        a += p
+        b += p @ o
+    return np.linalg.lstsq(a, b, rcond=None)[0]
+
+
 def validate_pose(c2w: np.ndarray, where: str) -> np.ndarray:
     """Check a (4,4) camera-to-world matrix: finite, rigid, invertible. Returns it as float64."""
     try:

@@ -11,6 +11,7 @@ import matplotlib
 import numpy as np
 
 from neoedit.cameras import Cameras, look_at
+from neoedit.cameras.cameras import orbit_center
 from neoedit.cameras.rays import CameraTensors
 from neoedit.data.load import load_scene_data
 from neoedit.data.nerfstudio import load_cameras
@@ -29,19 +30,6 @@ def scene_cameras(data_path: Path) -> tuple[Cameras, list[str], dict[str, np.nda
         return load_cameras(Path(data_path))
     data = load_scene_data(Path(data_path))
     return data.cameras, data.file_paths, data.split
-
-
-def orbit_center(cameras: Cameras) -> np.ndarray:
-    """Least-squares point closest to all optical axes (where the cameras look)."""
-    origins = cameras.camera_to_world[:, :3, 3]
-    dirs = -cameras.camera_to_world[:, :3, 2]
-    a = np.zeros((3, 3))
-    b = np.zeros(3)
-    for o, d in zip(origins, dirs, strict=True):
-        p = np.eye(3) - np.outer(d, d)
-        a += p
-        b += p @ o
-    return np.linalg.lstsq(a, b, rcond=None)[0]
 
 
 def spiral_cameras(cameras: Cameras, n_frames: int) -> Cameras:

@@ -22,15 +22,17 @@ from neoedit.rendering.volume import composite, render_weights
 
 @dataclass
 class RenderConfig:
-    n_march_samples: int = 512
+    n_march_samples: int = 256
     """Evenly spaced candidate bins per ray over its valid domain, checked on the occupancy grid."""
     n_coarse_samples: int = 64
     """Density-only network queries per ray (no gradient), spread over the occupied candidates
     (or evenly spaced before the grid is trained). Their weights drive the PDF pass."""
     n_samples: int = 32
     """Network samples per ray drawn by PDF resampling on the same domain (these are rendered)."""
-    near_m: float = 0.05
-    """Closest distance from the camera that is rendered."""
+    near_m: float = -1.0
+    """Closest distance from the camera that is rendered; negative = automatic, set at
+    training time to a quarter of the median camera distance to the point the cameras look
+    at (keeps the field from explaining single views with fog right in front of a camera)."""
     chunk_rays: int = 8192
     """Rays per chunk when rendering whole images."""
 
@@ -62,7 +64,7 @@ def ray_intervals(
 ) -> RayIntervals:
     """Valid part of each ray: inside the scene box, beyond ``near_m``, outside every removal box."""
     t0, t1 = ray_aabb(rays.origins, rays.directions, field.aabb)
-    t0 = t0.clamp_min(near_m)
+    t0 = t0.clamp_min(max(near_m, 0.0))  # an unresolved automatic near plane (< 0) means 0
     intervals = near_far_intervals(t0, torch.maximum(t1, t0))
     return cut_boxes(intervals, rays.origins, rays.directions, boxes) if boxes else intervals
 
@@ -164,7 +166,6 @@ def render_rays(
     out["s_lo"], out["s_hi"] = lo, hi
     out["sigma"] = sigma.reshape(n, m)
     out["t_mid"] = samples.t_mid
-    out["n_network_samples"] = torch.tensor(len(idx))
     return out
 
 

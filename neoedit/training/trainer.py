@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from neoedit.cameras.cameras import orbit_center
 from neoedit.cameras.rays import CameraTensors
 from neoedit.data import SceneData, load_scene_data
 from neoedit.errors import NeoError
@@ -31,7 +32,8 @@ class TrainConfig:
     rays_per_batch: int = 2048
     """Rays per step, drawn at random from all training pixels."""
     lr: float = 1e-2
-    """Adam learning rate at the start (decays exponentially to lr * lr_final_factor)."""
+    """Adam learning rate at the start; decays exponentially to lr * lr_final_factor at
+    --max-steps or at --max-minutes, whichever comes first."""
     lr_final_factor: float = 0.1
     weight_decay_mlp: float = 1e-6
     distortion_loss_weight: float = 2e-3
@@ -57,9 +59,25 @@ def resolve_device(name: str) -> torch.device:
     return torch.device(name)
 
 
+def median_camera_distance(data: SceneData) -> float:
+    """Median distance [m] from the cameras to the point they all look at."""
+    center = orbit_center(data.cameras)
+    return float(np.median(np.linalg.norm(data.cameras.camera_to_world[:, :3, 3] - center, axis=1)))
+
+
 def scene_box(data: SceneData, margin_m: float = 0.02) -> list[list[float]]:
-    """Scene box: the dataset's ``scene_aabb`` if given, else the bounds of the cameras."""
-    box = data.scene_aabb_m if data.scene_aabb_m is not None else data.camera_aabb_m()
+    """Scene box: the dataset's ``scene_aabb`` if given; otherwise a cube around the point
+    the cameras look at, reaching out to the median camera distance (so it holds what an
+    inward-looking capture sees), joined with the camera bounds."""
+    if data.scene_aabb_m is not None:
+        box = data.scene_aabb_m
+    else:
+        center = orbit_center(data.cameras)
+        radius = median_camera_distance(data)
+        cam_box = data.camera_aabb_m()
+        box = np.stack(
+            [np.minimum(cam_box[0], center - radius), np.maximum(cam_box[1], center + radius)]
+        )
     return [(box[0] - margin_m).tolist(), (box[1] + margin_m).tolist()]
 
 
@@ -97,10 +115,6 @@ class Trainer:
             eps=1e-15,
             foreach=True,
         )
-        gamma = cfg.lr_final_factor ** (1.0 / max(cfg.max_steps, 1))
-        self.scheduler = torch.optim.lr_scheduler.LambdaLR(
-            self.optimizer, lambda s: gamma ** (s + scene.meta.step)
-        )
 
     def batch(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         """Random training pixels: image index, row, column and target colour (N,3) in [0,1]."""
@@ -111,8 +125,19 @@ class Trainer:
         u = torch.randint(0, w, (n,), device=self.device, generator=self.generator)
         return img, v, u, self.images[img, v, u].float() / 255.0
 
-    def step(self, step: int) -> float:
+    def learning_rate(self, step: int, seconds: float) -> float:
+        """Exponential decay from lr to lr * lr_final_factor over the run, measured in steps or,
+        with a time budget, in training time, whichever is further along."""
+        progress = step / max(self.cfg.max_steps, 1)
+        if self.cfg.max_minutes:
+            progress = max(progress, seconds / (60.0 * self.cfg.max_minutes))
+        return self.cfg.lr * self.cfg.lr_final_factor ** min(progress, 1.0)
+
+    def step(self, step: int, seconds: float = 0.0) -> float:
+        """One optimisation step; ``seconds`` of training so far set the learning rate."""
         field, grid, meta = self.scene.field, self.scene.grid, self.scene.meta
+        for group in self.optimizer.param_groups:
+            group["lr"] = self.learning_rate(step, seconds)
         if step % meta.grid.update_every == 0:
             grid.update(field.density, step, self.generator)
         img, v, u, target = self.batch()
@@ -145,7 +170,6 @@ class Trainer:
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         self.optimizer.step()
-        self.scheduler.step()
         return float(mse.detach())
 
     @torch.no_grad()
@@ -180,7 +204,7 @@ class Trainer:
             task = progress.add_task("train", total=cfg.max_steps, completed=meta.step, status="")
             for step in range(meta.step, cfg.max_steps):
                 t0 = time.perf_counter()
-                mse = self.step(step)
+                mse = self.step(step, t_train)
                 t_train += time.perf_counter() - t0
                 ema = mse if ema is None else 0.9 * ema + 0.1 * mse
                 meta.step, meta.train_seconds = step + 1, t_train
@@ -232,13 +256,16 @@ def train(
             raise NeoError(
                 f"{out} already holds a scene; pass --resume to continue it or choose another --out"
             )
+        render_cfg = dataclasses.replace(render_cfg or RenderConfig())
+        if render_cfg.near_m < 0:
+            render_cfg.near_m = round(0.25 * median_camera_distance(data), 4)
         meta = SceneMeta(
             data_path=str(Path(data_path).resolve()),
             aabb_m=scene_box(data),
             background_rgb=list(data.background_rgb or (1.0, 1.0, 1.0)),
             field=field_cfg or RadianceFieldConfig(),
             grid=grid_cfg or OccupancyGridConfig(),
-            render=render_cfg or RenderConfig(),
+            render=render_cfg,
             train=dataclasses.asdict(cfg),
         )
         scene = Scene.create(meta, dev, seed=cfg.seed)

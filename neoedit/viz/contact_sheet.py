@@ -30,26 +30,18 @@ def tile_images(
         y, x = pad_px + r * (h + pad_px), pad_px + c * (w + pad_px)
         tile = np.ascontiguousarray(img[..., :3])
         if labels is not None:
-            cv2.putText(
-                tile,
-                labels[k],
-                (3, int(14 * scale) + 2),
-                cv2.FONT_HERSHEY_SIMPLEX,
-                0.45 * scale,
-                (0, 0, 0),
-                2,
-                cv2.LINE_AA,
-            )
-            cv2.putText(
-                tile,
-                labels[k],
-                (3, int(14 * scale) + 2),
-                cv2.FONT_HERSHEY_SIMPLEX,
-                0.45 * scale,
-                (255, 255, 255),
-                1,
-                cv2.LINE_AA,
-            )
+            for colour, thickness in (((0, 0, 0), 2), ((255, 255, 255), 1)):  # outlined text
+                org = (3, int(14 * scale) + 2)
+                cv2.putText(
+                    tile,
+                    labels[k],
+                    org,
+                    cv2.FONT_HERSHEY_SIMPLEX,
+                    0.45 * scale,
+                    colour,
+                    thickness,
+                    cv2.LINE_AA,
+                )
         sheet[y : y + h, x : x + w] = tile
     return sheet
 
