@@ -307,3 +307,24 @@ def test_scene_box_without_dataset_box_holds_the_surfaces(sim_root: Path):
         ]
     )
     assert np.all((pts >= lo) & (pts <= hi), axis=1).mean() > 0.99
+
+
+def test_loss_mask_excludes_pixels(sim_root: Path, tmp_path: Path):
+    """nerfstudio mask_path: masked-out pixels contribute nothing to the loss."""
+    from neoedit.scene import Scene, SceneMeta
+    from neoedit.training.trainer import Trainer, scene_box
+
+    data = load_scene_data(sim_root / "removal_1" / "pre")
+    meta = SceneMeta(
+        data_path="x",
+        aabb_m=scene_box(data),
+        background_rgb=[1.0, 1.0, 1.0],
+        field=TINY_FIELD,
+        grid=TINY_GRID,
+        render=TINY_RENDER,
+    )
+    cfg = TrainConfig(rays_per_batch=256, distortion_loss_weight=0.0)
+    data.loss_mask = np.zeros(data.images.shape[:3], bool)
+    assert Trainer(data, Scene.create(meta), cfg, tmp_path, torch.device("cpu")).step(0) == 0.0
+    data.loss_mask[:] = True
+    assert Trainer(data, Scene.create(meta), cfg, tmp_path, torch.device("cpu")).step(0) > 0.0

@@ -89,10 +89,6 @@ class Cameras:
             self.height[idx],
         )
 
-    def intrinsics_matrix(self, i: int) -> np.ndarray:
-        """(3,3) K of camera i in the OpenCV sense (y down, z forward)."""
-        return np.array([[self.fx[i], 0, self.cx[i]], [0, self.fy[i], self.cy[i]], [0, 0, 1.0]])
-
     def pixel_directions_camera(self, i: int) -> np.ndarray:
         """(H, W, 3) camera-frame ray directions through pixel centres, with z = -1."""
         w, h = int(self.width[i]), int(self.height[i])

@@ -99,6 +99,12 @@ class Trainer:
         self.alpha = None
         if cfg.random_background and data.alpha is not None:
             self.alpha = torch.as_tensor(data.alpha[train], device=device)
+        # nerfstudio mask_path: pixels whose mask is 0 are left out of the loss
+        self.loss_mask = (
+            None
+            if data.loss_mask is None
+            else torch.as_tensor(data.loss_mask[train], device=device)
+        )
         self.depth = None
         if cfg.depth_loss_weight > 0 and data.depth_m is not None:
             self.depth = torch.as_tensor(data.depth_m[train], device=device)
@@ -152,7 +158,12 @@ class Trainer:
         out = render_rays(
             field, use_grid, rays, meta.render, background, jitter=True, generator=self.generator
         )
-        mse = torch.mean((out["rgb"] - target) ** 2)
+        sq_err = ((out["rgb"] - target) ** 2).mean(-1)
+        if self.loss_mask is not None:
+            keep = self.loss_mask[img, v, u].float()
+            mse = (sq_err * keep).sum() / keep.sum().clamp_min(1.0)
+        else:
+            mse = sq_err.mean()
         loss = mse
         if self.cfg.distortion_loss_weight > 0:
             loss = (
