@@ -38,6 +38,13 @@ class TrainConfig:
     weight_decay_mlp: float = 1e-6
     distortion_loss_weight: float = 2e-3
     """Weight of the mip-NeRF 360 distortion loss (suppresses floaters; 0 = off)."""
+    sparsity_loss_weight: float = -1.0
+    """Weight of a penalty on the opacity of random points in the scene box (pushes
+    unobserved space to empty). Negative = automatic: 0.1 when the data gives no scene box
+    (the box is then a loose cube around the cameras, where fog otherwise explains the
+    training views), 0 when it does (measured: it slows convergence there)."""
+    sparsity_points: int = 4096
+    """Random points per step for the sparsity penalty."""
     random_background: bool = True
     """With RGBA data, train over random background colours (transparent pixels stay empty)."""
     depth_loss_weight: float = 0.0
@@ -178,6 +185,13 @@ class Trainer:
                 loss = loss + self.cfg.depth_loss_weight * torch.mean(
                     torch.abs(out["depth_z"][valid] - gt[valid])
                 )
+        if self.cfg.sparsity_loss_weight > 0:
+            aabb = field.aabb
+            u = torch.rand(
+                self.cfg.sparsity_points, 3, device=self.device, generator=self.generator
+            )
+            sigma = field.density(aabb[0] + u * (aabb[1] - aabb[0]))
+            loss = loss + self.cfg.sparsity_loss_weight * (1.0 - torch.exp(-0.01 * sigma)).mean()
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         self.optimizer.step()
@@ -259,6 +273,10 @@ def train(
     dev = resolve_device(device)
     torch.manual_seed(cfg.seed)
     data = load_scene_data(data_path)
+    if cfg.sparsity_loss_weight < 0:
+        cfg = dataclasses.replace(
+            cfg, sparsity_loss_weight=0.1 if data.scene_aabb_m is None else 0.0
+        )
     if resume:
         scene = load_scene(out, dev)
         scene.meta.train = dataclasses.asdict(cfg)
