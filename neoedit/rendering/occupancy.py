@@ -56,10 +56,6 @@ class OccupancyGrid(nn.Module):
         above = (self.density > thresh).float()[None, None]
         self.occupied.copy_(torch.nn.functional.max_pool3d(above, 3, stride=1, padding=1)[0, 0] > 0)
 
-    def _load_from_state_dict(self, *args, **kwargs):  # noqa: ANN002, ANN003
-        super()._load_from_state_dict(*args, **kwargs)
-        self.refresh_mask()
-
     def cell_index(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Flat cell index (N,) of world points and whether each is inside the box (N,)."""
         r = self.cfg.resolution

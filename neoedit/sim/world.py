@@ -126,7 +126,7 @@ class SimWorld:
         lo = self.object_vertices_world_for(body).min(0)
         pos, _ = pb.getBasePositionAndOrientation(body, physicsClientId=self.client)
         x, y, drop = obj.position_m
-        new_pos = [pos[0] + x - 0.0, pos[1] + y - 0.0, pos[2] - lo[2] + max(drop, 0.002)]
+        new_pos = [pos[0] + x, pos[1] + y, pos[2] - lo[2] + max(drop, 0.002)]
         pb.resetBasePositionAndOrientation(body, new_pos, orn, physicsClientId=self.client)
         pb.changeDynamics(
             body,
@@ -157,7 +157,11 @@ class SimWorld:
     # -- queries -----------------------------------------------------------------------------
     def object_pose(self, name: str) -> np.ndarray:
         """(4,4) world pose of the object's URDF link frame."""
-        body = self.bodies[name]
+        return self._link_pose(self.bodies[name])
+
+    def _link_pose(self, body: int) -> np.ndarray:
+        """(4,4) world pose of a body's base URDF link frame (PyBullet reports the
+        centre-of-mass frame; undo the link's inertial offset)."""
         com = _pose_matrix(
             self.client, *pb.getBasePositionAndOrientation(body, physicsClientId=self.client)
         )
@@ -166,11 +170,7 @@ class SimWorld:
 
     def object_vertices_world_for(self, body: int) -> np.ndarray:
         """(N,3) world points on the visual geometry of a body's base link."""
-        com = _pose_matrix(
-            self.client, *pb.getBasePositionAndOrientation(body, physicsClientId=self.client)
-        )
-        info = pb.getDynamicsInfo(body, -1, physicsClientId=self.client)
-        link = com @ np.linalg.inv(_pose_matrix(self.client, info[3], info[4]))
+        link = self._link_pose(body)
         points = []
         for vs in pb.getVisualShapeData(body, physicsClientId=self.client):
             geom, dims, mesh_file = vs[2], np.asarray(vs[3]), vs[4].decode()
