@@ -4,7 +4,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.neoedit-installed
 DEMO_OUT ?= outputs/demo
 
-.PHONY: setup demo test lint bench-sim bench-field clean
+.PHONY: setup demo test lint bench-sim bench-field bench-language clean
 
 setup: $(STAMP)
 
@@ -17,16 +17,19 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install -q -e ".[dev]"
 	touch $(STAMP)
 
-# The end-to-end demo on embedded defaults: simulate, train, render, evaluate.
+# The end-to-end demo on embedded defaults: simulate, train (field + language), render,
+# evaluate, find the mug by name.
 demo: $(STAMP)
 	$(VENV)/bin/neo sim scene examples/demo_scene.yaml --out $(DEMO_OUT)/sim --overwrite
-	rm -rf $(DEMO_OUT)/scene $(DEMO_OUT)/render $(DEMO_OUT)/eval_images
+	rm -rf $(DEMO_OUT)/scene $(DEMO_OUT)/render $(DEMO_OUT)/eval_images $(DEMO_OUT)/query
 	$(VENV)/bin/neo train $(DEMO_OUT)/sim/pre --out $(DEMO_OUT)/scene --max-steps 600 --eval-every 200
 	$(VENV)/bin/neo render $(DEMO_OUT)/scene --views spiral --n-frames 36 --video --out $(DEMO_OUT)/render
 	$(VENV)/bin/neo eval $(DEMO_OUT)/scene --data $(DEMO_OUT)/sim/pre --json $(DEMO_OUT)/eval.json --images $(DEMO_OUT)/eval_images
+	$(VENV)/bin/neo query $(DEMO_OUT)/scene "mug" --json $(DEMO_OUT)/query.json --out $(DEMO_OUT)/query --image-scale 2
 	@echo "contact sheets:  $(DEMO_OUT)/sim/*/contact_sheet.png"
 	@echo "spiral video:    $(DEMO_OUT)/render/video.gif"
 	@echo "held-out views (render | ground truth): $(DEMO_OUT)/eval_images/"
+	@echo "query 'mug' (box + relevancy): $(DEMO_OUT)/query/query.png, box: $(DEMO_OUT)/query.json"
 
 test: $(STAMP)
 	$(PY) -m pytest tests
@@ -42,6 +45,9 @@ bench-sim: $(STAMP)
 bench-field: bench-sim
 	$(PY) benchmarks/bench_field.py encoding
 	$(PY) benchmarks/bench_field.py train --scenes removal_1 removal_4 --minutes 4 --eval-every 200
+
+bench-language: bench-sim
+	$(PY) benchmarks/bench_language.py --data outputs/neosim_standard --scenes-dir outputs/bench_language
 
 clean:
 	rm -rf $(VENV) outputs build *.egg-info

@@ -4,6 +4,8 @@ Layout of a scene directory::
 
     scene.json            metadata: configs, scene box, background, training state, lineage
     field.safetensors     field weights and the occupancy grid
+    language.safetensors  language field weights + the surface point cloud queries run on
+                          (only once a language field is trained)
     optimizer.safetensors Adam state (only while training may resume)
 
 Written atomically; configs are JSON, tensors safetensors (nothing is pickled).
@@ -23,13 +25,61 @@ import torch
 from pydantic import TypeAdapter, ValidationError
 from safetensors.torch import load_file, save_file
 
+from neoedit.cameras.rays import CameraTensors
 from neoedit.errors import NeoError
 from neoedit.fields.radiance import RadianceField, RadianceFieldConfig
+from neoedit.geometry import OrientedBox
+from neoedit.language.field import LanguageField, LanguageFieldConfig
+from neoedit.language.text import TextEncoderSpec
 from neoedit.rendering.occupancy import OccupancyGrid, OccupancyGridConfig
-from neoedit.rendering.renderer import RenderConfig
+from neoedit.rendering.renderer import RenderConfig, render_image
 from neoedit.utils.io import atomic_directory, atomic_write_json
 
 FORMAT = "neoedit.scene/1"
+
+
+class SuppressedField(torch.nn.Module):
+    """A radiance field whose density is zero inside some boxes (DFF-style removal: the
+    rays are sampled as usual, the object's density is just switched off)."""
+
+    def __init__(self, field: RadianceField, boxes: list[OrientedBox]):
+        super().__init__()
+        self.field, self.boxes = field, boxes
+        self.aabb = field.aabb
+
+    def _outside(self, points: torch.Tensor) -> torch.Tensor:
+        keep = torch.ones(len(points), dtype=torch.bool, device=points.device)
+        for box in self.boxes:
+            local = (points - points.new_tensor(box.center_m)) @ points.new_tensor(box.rotation)
+            keep &= ~(local.abs() <= points.new_tensor(box.half_extents)).all(-1)
+        return keep
+
+    def density(self, points: torch.Tensor) -> torch.Tensor:
+        return self.field.density(points) * self._outside(points)
+
+    def forward(
+        self, points: torch.Tensor, directions: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        sigma, rgb = self.field(points, directions)
+        return sigma * self._outside(points), rgb
+
+
+@dataclass
+class LanguageMeta:
+    """How the language field of a scene was made (queries embed prompts with ``text``)."""
+
+    field: LanguageFieldConfig
+    text: TextEncoderSpec
+    teacher: str
+    """'labels' or 'clip' (+ '+dino' when a DINO head was trained)."""
+    vocabulary: list[str] = dataclasses.field(default_factory=list)
+    """Names the label teacher embedded (empty for image teachers)."""
+    steps: int = 0
+    seconds: float = 0.0
+    loss: float = 0.0
+    """Final mean cosine distance to the teacher on training surface points."""
+    up: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 1.0])
+    """World up axis used for boxes (z in NEO-Sim; checked against the cameras)."""
 
 
 @dataclass
@@ -46,6 +96,14 @@ class SceneMeta:
     train_seconds: float = 0.0
     history: list[dict[str, Any]] = dataclasses.field(default_factory=list)
     """Training log: step, seconds, train/eval PSNR."""
+    language: LanguageMeta | None = None
+    cut_boxes: list[dict[str, Any]] = dataclasses.field(default_factory=list)
+    """Boxes cut out of every ray at render time (removal by resampling, no training)."""
+    suppress_boxes: list[dict[str, Any]] = dataclasses.field(default_factory=list)
+    """Boxes whose density is zeroed at render time (DFF-style suppression baseline)."""
+    edits: list[dict[str, Any]] = dataclasses.field(default_factory=list)
+    """Edit history from the original scan to this version (type, prompt, box, parameters,
+    parent version, seconds), oldest first."""
     version_id: str = dataclasses.field(default_factory=lambda: uuid.uuid4().hex[:12])
     parent: str | None = None
     created: str = dataclasses.field(default_factory=lambda: time.strftime("%Y-%m-%dT%H:%M:%S"))
@@ -57,11 +115,42 @@ class Scene:
     field: RadianceField
     grid: OccupancyGrid
     meta: SceneMeta
+    language: LanguageField | None = None
+    surface_points_m: torch.Tensor | None = None
+    """(P,3) surface points seen in the training views (where queries evaluate L(x))."""
 
     @property
     def background(self) -> torch.Tensor:
         return torch.tensor(
             self.meta.background_rgb, dtype=torch.float32, device=self.field.aabb.device
+        )
+
+    def renderable(self) -> tuple[torch.nn.Module, list[OrientedBox]]:
+        """The field to render and the boxes to cut out of every ray, with this version's
+        render-time removals applied (suppression wraps the field; resampling cuts rays)."""
+        field_: torch.nn.Module = self.field
+        if self.meta.suppress_boxes:
+            field_ = SuppressedField(
+                self.field, [OrientedBox.from_dict(b) for b in self.meta.suppress_boxes]
+            )
+        return field_, [OrientedBox.from_dict(b) for b in self.meta.cut_boxes]
+
+    def render_image(
+        self, cameras: CameraTensors, index: int, height: int, width: int
+    ) -> dict[str, torch.Tensor]:
+        """rgb (H,W,3), depth_z (H,W) [m], accumulation (H,W) of one camera, as this version
+        renders (render-time removals included)."""
+        field_, boxes = self.renderable()
+        return render_image(
+            field_,  # type: ignore[arg-type]  # a RadianceField or its suppressed wrapper
+            self.grid,
+            cameras,
+            index,
+            height,
+            width,
+            self.meta.render,
+            self.background,
+            boxes,
         )
 
     @classmethod
@@ -85,6 +174,13 @@ def save_scene(path: Path, scene: Scene, optimizer: torch.optim.Optimizer | None
             save_file(
                 _optimizer_tensors(scene.field, optimizer), str(tmp / "optimizer.safetensors")
             )
+        if scene.language is not None and scene.surface_points_m is not None:
+            lang = {
+                f"language.{k}": v.detach().cpu().contiguous()
+                for k, v in scene.language.state_dict().items()
+            }
+            lang["surface_points_m"] = scene.surface_points_m.detach().cpu().float().contiguous()
+            save_file(lang, str(tmp / "language.safetensors"))
         atomic_write_json(tmp / "scene.json", dataclasses.asdict(scene.meta))
 
 
@@ -125,9 +221,35 @@ def load_scene(path: Path, device: torch.device | str = "cpu") -> Scene:
         scene.grid.refresh_mask()
     except (RuntimeError, KeyError) as e:
         raise NeoError(f"{weights}: weights do not match the scene config: {e}") from None
+    if meta.language is not None:
+        _load_language(path, scene, meta.language)
+        scene.language.to(device)  # type: ignore[union-attr]
+        scene.surface_points_m = scene.surface_points_m.to(device)  # type: ignore[union-attr]
     scene.field.to(device)
     scene.grid.to(device)
     return scene
+
+
+def _load_language(path: Path, scene: Scene, meta: LanguageMeta) -> None:
+    file = path / "language.safetensors"
+    if not file.is_file():
+        raise NeoError(
+            f"{path}: scene.json names a language field but language.safetensors is missing"
+        )
+    try:
+        tensors = load_file(str(file))
+        field_ = LanguageField(meta.field, scene.field.aabb.cpu())
+        field_.load_state_dict(
+            {
+                k.removeprefix("language."): v
+                for k, v in tensors.items()
+                if k.startswith("language.")
+            }
+        )
+        points = tensors["surface_points_m"]
+    except Exception as e:  # corrupt file, missing keys, shape mismatch
+        raise NeoError(f"{file}: cannot load the language field: {e}") from None
+    scene.language, scene.surface_points_m = field_, points
 
 
 def _optimizer_tensors(

@@ -7,10 +7,45 @@ from pathlib import Path
 
 import pytest
 
+from neoedit.fields.hashgrid import HashGridConfig
+from neoedit.fields.radiance import RadianceFieldConfig
+from neoedit.rendering.occupancy import OccupancyGridConfig
+from neoedit.rendering.renderer import RenderConfig
 from neoedit.sim.spec import ScanSpec
 from neoedit.sim.suite import benchmark_scenes
+from neoedit.training.trainer import TrainConfig, train
 
 TINY_SCAN = ScanSpec(width=64, height=48, n_train=10, n_eval=3)
+TINY_FIELD = RadianceFieldConfig(
+    hashgrid=HashGridConfig(n_levels=8, log2_hashmap_size=14, max_resolution=256),
+    hidden_dim=32,
+    hidden_dim_color=32,
+)
+TINY_RENDER = RenderConfig(n_march_samples=192, n_coarse_samples=48, n_samples=24)
+TINY_GRID = OccupancyGridConfig(resolution=48, warmup_steps=32)
+
+
+def tiny_train(data: Path, out: Path, steps: int, resume: bool = False, language=None):
+    """Train the tiny test configuration on CPU (no evaluation, one checkpoint at the end)."""
+    cfg = TrainConfig(
+        max_steps=steps,
+        rays_per_batch=1024,
+        eval_every=0,
+        eval_views=2,
+        checkpoint_every=0,
+        lr=2e-2,
+    )
+    return train(
+        data,
+        out,
+        cfg,
+        TINY_FIELD,
+        TINY_RENDER,
+        TINY_GRID,
+        device="cpu",
+        resume=resume,
+        language=language,
+    )
 
 
 def tiny_scene(name: str):
@@ -27,3 +62,11 @@ def sim_root(tmp_path_factory: pytest.TempPathFactory) -> Path:
     for name in ("removal_1", "pick_place_1"):
         simulate_scene(tiny_scene(name), root / name)
     return root
+
+
+@pytest.fixture(scope="session")
+def trained(sim_root: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The tiny removal_1 pre scan trained for 400 steps (radiance field only)."""
+    out = tmp_path_factory.mktemp("scene") / "pre"
+    tiny_train(sim_root / "removal_1" / "pre", out, steps=400)
+    return out

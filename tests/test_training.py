@@ -15,40 +15,11 @@ from neoedit.errors import NeoError
 from neoedit.eval.evaluate import render_views
 from neoedit.eval.metrics import psnr, reprojection_error, ssim
 from neoedit.eval.regions import box_mask
-from neoedit.fields.hashgrid import HashGridConfig
-from neoedit.fields.radiance import RadianceFieldConfig
 from neoedit.geometry import OrientedBox
-from neoedit.rendering.occupancy import OccupancyGridConfig
-from neoedit.rendering.renderer import RenderConfig, render_image
+from neoedit.rendering.renderer import render_image
 from neoedit.scene import load_scene, save_scene
-from neoedit.training.trainer import TrainConfig, train
-
-TINY_FIELD = RadianceFieldConfig(
-    hashgrid=HashGridConfig(n_levels=8, log2_hashmap_size=14, max_resolution=256),
-    hidden_dim=32,
-    hidden_dim_color=32,
-)
-TINY_RENDER = RenderConfig(n_march_samples=192, n_coarse_samples=48, n_samples=24)
-TINY_GRID = OccupancyGridConfig(resolution=48, warmup_steps=32)
-
-
-def tiny_train(data: Path, out: Path, steps: int, resume: bool = False):
-    cfg = TrainConfig(
-        max_steps=steps,
-        rays_per_batch=1024,
-        eval_every=0,
-        eval_views=2,
-        checkpoint_every=0,
-        lr=2e-2,
-    )
-    return train(data, out, cfg, TINY_FIELD, TINY_RENDER, TINY_GRID, device="cpu", resume=resume)
-
-
-@pytest.fixture(scope="module")
-def trained(sim_root: Path, tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("scene") / "pre"
-    tiny_train(sim_root / "removal_1" / "pre", out, steps=400)
-    return out
+from neoedit.training.trainer import TrainConfig
+from tests.conftest import TINY_FIELD, TINY_GRID, TINY_RENDER, tiny_train
 
 
 def test_tiny_scene_trains_to_psnr(trained: Path, sim_root: Path):

@@ -10,7 +10,9 @@ import tyro
 from rich.console import Console
 
 from neoedit.cli.data import InfoCommand
+from neoedit.cli.edit import RemoveCommand
 from neoedit.cli.field import EvalCommand, RenderCommand, TrainCommand
+from neoedit.cli.language import QueryCommand
 from neoedit.cli.sim import SimBenchmarkCommand, SimSceneCommand
 from neoedit.errors import NeoError
 
@@ -30,6 +32,8 @@ Commands = Union[  # noqa: UP007
     Annotated[TrainCommand, tyro.conf.subcommand("train")],
     Annotated[RenderCommand, tyro.conf.subcommand("render")],
     Annotated[EvalCommand, tyro.conf.subcommand("eval")],
+    Annotated[QueryCommand, tyro.conf.subcommand("query")],
+    Annotated[RemoveCommand, tyro.conf.subcommand("remove")],
 ]
 
 
@@ -42,6 +46,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except NeoError as e:
         err.print(f"[bold red]error:[/] {e}", highlight=False)
         return 2
+    except SystemExit as e:  # a verb's own non-zero status (e.g. query: no match)
+        return int(e.code or 0)
     except KeyboardInterrupt:
         err.print("[yellow]interrupted[/]")
         return 130

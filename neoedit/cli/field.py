@@ -12,6 +12,7 @@ import tyro
 from rich.console import Console
 
 from neoedit.fields.radiance import RadianceFieldConfig
+from neoedit.language.training import LanguageTrainConfig
 from neoedit.rendering.occupancy import OccupancyGridConfig
 from neoedit.rendering.renderer import RenderConfig
 from neoedit.training.trainer import TrainConfig
@@ -33,10 +34,15 @@ class TrainCommand:
     field: RadianceFieldConfig = dataclasses.field(default_factory=RadianceFieldConfig)
     grid: OccupancyGridConfig = dataclasses.field(default_factory=OccupancyGridConfig)
     render: RenderConfig = dataclasses.field(default_factory=RenderConfig)
+    language: LanguageTrainConfig = dataclasses.field(default_factory=LanguageTrainConfig)
+    """Language field, trained after the radiance field on the frozen geometry."""
+    skip_language: bool = False
+    """Do not train the language field (scenes without one cannot be queried)."""
     device: str = "auto"
     """'auto' (CUDA if available), 'cpu' or 'cuda[:N]'."""
     resume: bool = False
-    """Continue training the scene in OUT up to --max-steps."""
+    """Continue training the scene in OUT up to --max-steps (with --max-steps at or below the
+    steps already done, only the language field is (re)trained)."""
 
     def run(self) -> None:
         from neoedit.training.trainer import train
@@ -50,12 +56,19 @@ class TrainCommand:
             self.grid,
             self.device,
             self.resume,
+            None if self.skip_language else self.language,
         )
         last = scene.meta.history[-1] if scene.meta.history else {}
         console.print(
             f"wrote {self.out}: {scene.meta.step} steps in {scene.meta.train_seconds:.1f} s, "
             f"train PSNR {last.get('train_psnr')} dB, held-out PSNR {last.get('eval_psnr')} dB"
         )
+        lang = scene.meta.language
+        if lang is not None:
+            console.print(
+                f"language field ({lang.teacher}, {lang.field.dim}-d): {lang.steps} steps in "
+                f"{lang.seconds:.1f} s, cosine loss {lang.loss:.4f}"
+            )
 
 
 @dataclass

@@ -14,7 +14,6 @@ from neoedit.data import SceneData
 from neoedit.eval.metrics import depth_rmse_m, psnr, reprojection_error, ssim
 from neoedit.eval.regions import masks_for_boxes
 from neoedit.geometry import OrientedBox
-from neoedit.rendering.renderer import render_image
 from neoedit.scene import Scene
 from neoedit.utils.io import write_png
 from neoedit.utils.progress import track
@@ -23,24 +22,15 @@ METRICS = ("psnr", "ssim", "depth_rmse_m", "e_rep")
 
 
 def render_views(
-    scene: Scene, data: SceneData, indices: Sequence[int], boxes: Sequence[OrientedBox] = ()
+    scene: Scene, data: SceneData, indices: Sequence[int]
 ) -> list[dict[str, np.ndarray]]:
-    """Render the dataset's cameras ``indices`` -> rgb (H,W,3) in [0,1], depth_z (H,W) [m], accumulation."""
+    """Render the dataset's cameras ``indices`` as the scene version renders them (its
+    render-time removals included) -> rgb (H,W,3) in [0,1], depth_z (H,W) [m], accumulation."""
     device = scene.field.aabb.device
     cams = CameraTensors(data.cameras, device)
     out = []
     for i in track(list(indices), "render"):
-        r = render_image(
-            scene.field,
-            scene.grid,
-            cams,
-            int(i),
-            data.height,
-            data.width,
-            scene.meta.render,
-            scene.background,
-            boxes,
-        )
+        r = scene.render_image(cams, int(i), data.height, data.width)
         out.append({k: v.detach().cpu().numpy() for k, v in r.items()})
     return out
 
@@ -63,6 +53,7 @@ def evaluate(
     regions: dict[str, list[np.ndarray | None]] = {"full": [None] * len(indices)}
     if out_boxes:
         regions["out"] = [masks_for_boxes(data.cameras, i, list(out_boxes)) for i in indices]
+        regions["rest"] = [~m for m in regions["out"]]  # type: ignore[operator]
     if in_boxes:
         regions["in"] = [masks_for_boxes(data.cameras, i, list(in_boxes)) for i in indices]
     per_region: dict[str, dict[str, list[float]]] = {r: {m: [] for m in METRICS} for r in regions}

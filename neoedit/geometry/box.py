@@ -188,3 +188,17 @@ def load_boxes(path: Path) -> list[OrientedBox]:
         raise NeoError(f"{path} is not valid JSON: {e}") from None
     items = data if isinstance(data, list) else [data]
     return [OrientedBox.from_dict(d.get("box", d) if isinstance(d, dict) else {}) for d in items]
+
+
+def yaw_error_deg(pred: OrientedBox, truth: OrientedBox, square_tolerance: float = 0.15) -> float:
+    """Yaw error [deg] modulo the box's symmetry: the angle between the long sides (modulo
+    180), or modulo 90 when the true footprint is nearly square (sides within
+    ``square_tolerance`` of each other), where the long side is not defined."""
+
+    def long_side_yaw(box: OrientedBox) -> float:
+        return box.yaw_deg if box.size_m[0] >= box.size_m[1] else box.yaw_deg + 90.0
+
+    sx, sy = truth.size_m[0], truth.size_m[1]
+    period = 90.0 if abs(sx - sy) <= square_tolerance * max(sx, sy) else 180.0
+    d = (long_side_yaw(pred) - long_side_yaw(truth)) % period
+    return float(min(d, period - d))

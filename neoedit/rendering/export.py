@@ -16,7 +16,6 @@ from neoedit.cameras.rays import CameraTensors
 from neoedit.data.load import load_scene_data
 from neoedit.data.nerfstudio import load_cameras
 from neoedit.errors import NeoError
-from neoedit.rendering.renderer import render_image
 from neoedit.scene import Scene, load_scene
 from neoedit.utils.io import atomic_write_json, write_png
 from neoedit.utils.progress import track
@@ -70,16 +69,7 @@ def render_to_dataset(
     cams = CameraTensors(cameras, device)
     frames, rgbs, depths = [], [], []
     for i in track(range(len(cameras)), "render"):
-        r = render_image(
-            scene.field,
-            scene.grid,
-            cams,
-            i,
-            int(cameras.height[i]),
-            int(cameras.width[i]),
-            scene.meta.render,
-            scene.background,
-        )
+        r = scene.render_image(cams, i, int(cameras.height[i]), int(cameras.width[i]))
         rgb = (r["rgb"].clamp(0, 1).cpu().numpy() * 255).round().astype(np.uint8)
         depth = np.where(r["accumulation"].cpu().numpy() > 0.5, r["depth_z"].cpu().numpy(), 0.0)
         stem = Path(names[i]).with_suffix("")

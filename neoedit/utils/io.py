@@ -35,10 +35,10 @@ def atomic_write_json(path: Path, obj: Any) -> None:
 
 
 def write_png(path: Path, image: np.ndarray) -> None:
-    """Write a uint8 or uint16 image as PNG (parent folders are created)."""
+    """Write a uint8 or uint16 image as PNG, atomically (parent folders are created)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    iio.imwrite(path, image)
+    atomic_write_bytes(path, iio.imwrite("<bytes>", image, extension=".png"))
 
 
 @contextlib.contextmanager

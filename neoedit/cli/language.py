@@ -1,0 +1,94 @@
+"""``neo query``: prompt -> oriented 3-D box, relevancy maps and a render with the box."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import tyro
+from rich.console import Console
+
+from neoedit.errors import NeoError
+from neoedit.language.localize import QueryConfig
+
+console = Console()
+
+
+@dataclass
+class QueryCommand:
+    """Find the object a prompt names; prints its box as JSON (the box format of objects.json)
+    and writes a picture per view: the render with the box, the relevancy map. Several prompts
+    are separated by ';'. A prompt that matches nothing exits with status 1."""
+
+    scene: tyro.conf.Positional[Path]
+    """Scene directory (with a language field)."""
+    prompt: tyro.conf.Positional[str]
+    """What to find, e.g. "red mug" or "red mug; duck"."""
+    json: Path | None = None
+    """Also write the box (one prompt) or the list of boxes (several) to this file."""
+    out: Path | None = None
+    """Folder for query.png (default: outputs/query/<scene name>)."""
+    views: int = 3
+    """Training views to draw (0 = no pictures)."""
+    image_scale: float = 0.5
+    """Resolution of the pictures relative to the training images."""
+    query: QueryConfig = dataclasses.field(default_factory=QueryConfig)
+    device: str = "auto"
+
+    def run(self) -> None:
+        from neoedit.language.localize import NoMatch, query_scene
+        from neoedit.language.relevancy import split_prompts
+        from neoedit.language.text import load_text_encoder
+        from neoedit.scene import load_scene
+        from neoedit.training.trainer import resolve_device
+        from neoedit.utils.io import atomic_write_json
+
+        prompts = split_prompts(self.prompt)
+        if not prompts:
+            raise NeoError('empty prompt: say which object to find, e.g. "red mug"')
+        if self.views < 0 or not 0 < self.image_scale <= 4:
+            raise NeoError("--views must be >= 0 and --image-scale in (0, 4]")
+        scene = load_scene(self.scene, resolve_device(self.device))
+        if scene.meta.language is None:
+            raise NeoError(f"{self.scene} has no language field (train it on data with a teacher)")
+        text = load_text_encoder(scene.meta.language.text)
+        results, misses = [], []
+        for prompt in prompts:
+            try:
+                results.append(query_scene(scene, prompt, text, self.query))
+            except NoMatch as e:
+                misses.append(e)
+        boxes = [r.to_dict() for r in results]
+        for box in boxes:
+            console.print_json(json.dumps(box))
+        if self.views and results:
+            path = self._pictures(scene, results, [r.prompt for r in results], text)
+            if path is not None:
+                console.print(f"wrote {path}")
+        if misses:
+            for miss in misses:
+                console.print(f"[bold red]{miss}[/]", highlight=False)
+            raise SystemExit(1)
+        if self.json is not None:
+            atomic_write_json(self.json, boxes[0] if len(boxes) == 1 else boxes)
+
+    def _pictures(self, scene, results, prompts, text) -> Path | None:
+        from neoedit.language.report import write_query_images
+        from neoedit.rendering.export import scene_cameras
+        from neoedit.viz.boxes import scaled_cameras
+
+        try:
+            cameras, _, split = scene_cameras(Path(scene.meta.data_path))
+        except NeoError as e:
+            console.print(f"[yellow]no pictures: the scene's dataset cannot be read ({e})[/]")
+            return None
+        train = split["train"]
+        pick = train[
+            np.linspace(0, len(train) - 1, min(self.views, len(train))).round().astype(int)
+        ]
+        cams = scaled_cameras(cameras.subset(pick), self.image_scale)
+        out = self.out or Path("outputs/query") / Path(self.scene).resolve().name
+        return write_query_images(scene, results, prompts, text, cams, out, self.query)

@@ -1,0 +1,45 @@
+"""Scene versions: every edit writes a new version directory and never touches its parent."""
+
+from __future__ import annotations
+
+import copy
+import time
+import uuid
+from pathlib import Path
+from typing import Any
+
+from neoedit.errors import NeoError
+from neoedit.scene import Scene, save_scene
+
+
+def check_output(parent_dir: Path, out: Path, overwrite: bool = False) -> None:
+    """Refuse to write an edit over its input version, or over any scene without --overwrite."""
+    if Path(out).resolve() == Path(parent_dir).resolve():
+        raise NeoError(
+            f"--out {out} is the input scene: an edit never overwrites the version it started from"
+        )
+    if Path(out).exists() and not overwrite:
+        raise NeoError(f"{out} already exists (choose another --out or pass --overwrite)")
+
+
+def new_version(parent: Scene, record: dict[str, Any]) -> Scene:
+    """A deep copy of ``parent`` as a new version: fresh id, parent link, the edit appended
+    to the history. The parent object is left unchanged."""
+    child = Scene(
+        copy.deepcopy(parent.field),
+        copy.deepcopy(parent.grid),
+        copy.deepcopy(parent.meta),
+        copy.deepcopy(parent.language),
+        None if parent.surface_points_m is None else parent.surface_points_m.clone(),
+    )
+    meta = child.meta
+    meta.parent = parent.meta.version_id
+    meta.version_id = uuid.uuid4().hex[:12]
+    meta.created = time.strftime("%Y-%m-%dT%H:%M:%S")
+    meta.edits.append({**record, "parent": parent.meta.version_id, "version": meta.version_id})
+    return child
+
+
+def write_version(out: Path, scene: Scene) -> None:
+    """Write the version atomically (weights, language field, metadata with the history)."""
+    save_scene(Path(out), scene)

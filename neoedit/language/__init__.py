@@ -1,0 +1,37 @@
+"""Language field and language-guided localisation (paper section III, opening).
+
+Public API (imported lazily, so ``neoedit.scene`` can use the field module):
+
+* :func:`train_language` / :class:`LanguageTrainConfig`: distil a 2-D teacher into L(x).
+* :func:`query_scene` / :class:`QueryConfig`: prompt -> :class:`QueryResult` (oriented box).
+* :func:`relevancy`, :func:`load_text_encoder`, :class:`TextEncoderSpec`.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+_EXPORTS = {
+    "train_language": "training",
+    "LanguageTrainConfig": "training",
+    "query_scene": "localize",
+    "localize": "localize",
+    "QueryConfig": "localize",
+    "QueryResult": "localize",
+    "NoMatch": "localize",
+    "relevancy": "relevancy",
+    "split_prompts": "relevancy",
+    "load_text_encoder": "text",
+    "TextEncoderSpec": "text",
+    "LanguageField": "field",
+    "LanguageFieldConfig": "field",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    if name in _EXPORTS:
+        return getattr(importlib.import_module(f"{__name__}.{_EXPORTS[name]}"), name)
+    raise AttributeError(name)

