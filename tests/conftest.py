@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import string
 from pathlib import Path
 
 import pytest
@@ -51,6 +52,13 @@ def tiny_train(data: Path, out: Path, steps: int, resume: bool = False, language
 def tiny_scene(name: str):
     spec = next(s for s in benchmark_scenes("small", seed=0) if s.name == name)
     return dataclasses.replace(spec, scan=TINY_SCAN)
+
+
+def tiny_clip_vocab() -> dict[str, int]:
+    """A character-level CLIP BPE vocabulary (no merges) for tiny random test models."""
+    chars = list(string.ascii_lowercase + string.digits + " ;,.-'")
+    tokens = ["<|startoftext|>", "<|endoftext|>", *chars, *[c + "</w>" for c in chars]]
+    return {t: i for i, t in enumerate(tokens)}
 
 
 @pytest.fixture(scope="session")

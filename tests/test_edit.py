@@ -4,7 +4,6 @@ tiny random diffusers pipeline), suppression, and `neo remove` end to end on a t
 
 import hashlib
 import json
-import string
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +22,7 @@ from neoedit.errors import NeoError
 from neoedit.eval.regions import box_mask
 from neoedit.geometry import OrientedBox
 from neoedit.scene import SuppressedField, load_scene
+from tests.conftest import tiny_clip_vocab
 
 REFERENCE = Cameras.shared(np.eye(4)[None].repeat(1, 0), 60.0, 60.0, 40.0, 30.0, 80, 60)
 
@@ -159,13 +159,7 @@ def write_tiny_inpaint_pipeline(path: Path) -> Path:
         latent_channels=4,
         norm_num_groups=8,
     )
-    chars = list(string.ascii_lowercase + " ")
-    vocab = {
-        t: i
-        for i, t in enumerate(
-            ["<|startoftext|>", "<|endoftext|>", *chars, *[c + "</w>" for c in chars]]
-        )
-    }
+    vocab = tiny_clip_vocab()
     text = CLIPTextModel(
         CLIPTextConfig(
             vocab_size=len(vocab),

@@ -23,7 +23,7 @@ from neoedit.language.relevancy import relevancy, split_prompts
 from neoedit.language.text import TextEncoderSpec, load_text_encoder
 from neoedit.language.training import LanguageTrainConfig, train_language
 from neoedit.scene import load_scene, save_scene
-from tests.conftest import tiny_train
+from tests.conftest import tiny_clip_vocab, tiny_train
 
 TINY_LANGUAGE = LanguageTrainConfig(rays=24576, steps=300, batch=2048)
 # the tiny 64x48 scan gives a sparse cloud: cluster with a wider radius and fewer neighbours
@@ -221,17 +221,9 @@ def test_estimate_up_from_camera_poses_without_plane(sim_root: Path):
 
 
 def write_tiny_clip(path: Path) -> Path:
-    import string
-
     from transformers import CLIPConfig, CLIPModel, CLIPTokenizer
 
-    chars = list(string.ascii_lowercase + string.digits + ";,.-'")
-    vocab = {
-        t: i
-        for i, t in enumerate(
-            ["<|startoftext|>", "<|endoftext|>", *chars, *[c + "</w>" for c in chars]]
-        )
-    }
+    vocab = tiny_clip_vocab()
     torch.manual_seed(0)
     cfg = CLIPConfig(
         text_config=dict(

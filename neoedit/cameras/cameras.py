@@ -77,6 +77,18 @@ class Cameras:
     def __len__(self) -> int:
         return len(self.camera_to_world)
 
+    def with_poses(self, camera_to_world: np.ndarray) -> Cameras:
+        """New cameras at ``camera_to_world`` (N,4,4) with the intrinsics of camera 0."""
+        return Cameras.shared(
+            camera_to_world,
+            self.fx[0],
+            self.fy[0],
+            self.cx[0],
+            self.cy[0],
+            int(self.width[0]),
+            int(self.height[0]),
+        )
+
     def subset(self, indices: np.ndarray | list[int]) -> Cameras:
         idx = np.asarray(indices, dtype=np.int64)
         return Cameras(

@@ -61,15 +61,7 @@ def virtual_cameras(
         -1,
     )
     poses = np.stack([look_at(e, center) for e in eyes])
-    full = Cameras.shared(
-        poses,
-        reference.fx[0],
-        reference.fy[0],
-        reference.cx[0],
-        reference.cy[0],
-        int(reference.width[0]),
-        int(reference.height[0]),
-    )
+    full = reference.with_poses(poses)
     return scaled_cameras(full, cfg.image_scale) if cfg.image_scale != 1.0 else full
 
 

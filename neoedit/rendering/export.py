@@ -42,15 +42,7 @@ def spiral_cameras(cameras: Cameras, n_frames: int) -> Cameras:
         [np.cos(elev) * np.cos(az), np.cos(elev) * np.sin(az), np.full_like(az, np.sin(elev))], -1
     )
     poses = np.stack([look_at(e, center) for e in eyes])
-    return Cameras.shared(
-        poses,
-        cameras.fx[0],
-        cameras.fy[0],
-        cameras.cx[0],
-        cameras.cy[0],
-        int(cameras.width[0]),
-        int(cameras.height[0]),
-    )
+    return cameras.with_poses(poses)
 
 
 def colorize_depth(depth_m: np.ndarray, lo: float, hi: float) -> np.ndarray:
