@@ -95,11 +95,12 @@ class OrientedBox:
         return OrientedBox(tuple(center.tolist()), self.size_m, yaw)
 
     @classmethod
-    def fit_with_yaw(cls, points: np.ndarray, yaw_deg: float) -> OrientedBox:
-        """Tightest box of a given yaw around points (N,3)."""
+    def fit_with_yaw(cls, points: np.ndarray, yaw_deg: float, trim: float = 0.0) -> OrientedBox:
+        """Tightest box of a given yaw around points (N,3); ``trim`` > 0 leaves that fraction
+        of the points out on each side of each axis (robust to stragglers)."""
         rot = rot_z(yaw_deg)
         local = np.asarray(points, dtype=np.float64) @ rot  # into the yaw-aligned frame
-        lo, hi = local.min(0), local.max(0)
+        lo, hi = np.quantile(local, trim, axis=0), np.quantile(local, 1.0 - trim, axis=0)
         center = rot @ ((lo + hi) / 2)
         return cls(
             tuple(center.tolist()), tuple(np.maximum(hi - lo, 1e-4).tolist()), wrap_deg(yaw_deg)

@@ -55,6 +55,8 @@ class QueryConfig:
     min_samples: int = 12
     min_cluster_points: int = 25
     """Smallest cluster accepted as an object (fewer -> no match)."""
+    trim: float = 0.01
+    """Fraction of the cluster's points left out on each side of each box axis."""
     support_search_m: float = 0.1
     """How far below the cluster to look for the surface it stands on."""
 
@@ -124,8 +126,8 @@ def voxel_thin(points: np.ndarray, voxel_m: float) -> np.ndarray:
 def support_height(
     points: np.ndarray, cluster: np.ndarray, box: OrientedBox, cfg: QueryConfig
 ) -> float | None:
-    """z of the surface the cluster stands on: median height of the other points around its
-    footprint that lie below it, or None if there are too few (the cluster already reaches
+    """z of the surface the cluster stands on: the 90th percentile height of the other points
+    around its footprint that lie below it, or None if there are too few (the cluster already reaches
     down to its support, or nothing is seen around it)."""
     z0 = float(cluster[:, 2].min())
     grown = OrientedBox(
@@ -138,7 +140,7 @@ def support_height(
     )
     if int(near.sum()) < 10:
         return None
-    return float(np.median(points[near, 2]))
+    return float(np.quantile(points[near, 2], 0.9))  # the top of what lies below
 
 
 def localize(
@@ -181,10 +183,14 @@ def localize(
     if len(members) < cfg.min_cluster_points:
         raise NoMatch(prompt, best, cfg.threshold, too_few)
     cluster = points_m[members]
-    box = OrientedBox.fit_to_points(cluster)
+    # yaw from the minimum-area rectangle, extents trimmed of the outermost points per side
+    box = OrientedBox.fit_with_yaw(cluster, OrientedBox.fit_to_points(cluster).yaw_deg, cfg.trim)
     support = support_height(points_m, cluster, box, cfg)
     if support is not None:
-        box = OrientedBox.fit_to_points(cluster, z_min_m=support)
+        (cx, cy, cz), (sx, sy, sz) = box.center_m, box.size_m
+        top = cz + sz / 2
+        bottom = min(cz - sz / 2, support)
+        box = OrientedBox((cx, cy, (top + bottom) / 2), (sx, sy, top - bottom), box.yaw_deg)
     return QueryResult(prompt, box, float(np.median(rel[members])), best, cluster)
 
 
