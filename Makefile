@@ -4,7 +4,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.neoedit-installed
 DEMO_OUT ?= outputs/demo
 
-.PHONY: setup demo test lint bench-sim bench-field bench-language clean
+.PHONY: setup demo test lint bench-sim bench-field bench-language bench-remove clean
 
 setup: $(STAMP)
 
@@ -48,6 +48,9 @@ bench-field: bench-sim
 
 bench-language: bench-sim
 	$(PY) benchmarks/bench_language.py --data outputs/neosim_standard --scenes-dir outputs/bench_language
+
+bench-remove: bench-language
+	$(PY) benchmarks/bench_remove.py --data outputs/neosim_standard --scenes-dir outputs/bench_language --out outputs/bench_remove
 
 clean:
 	rm -rf $(VENV) outputs build *.egg-info

@@ -49,8 +49,10 @@ class RemoveConfig:
     removal preview, no training."""
     margin_m: float = 0.01
     """The box is grown by this much on its sides and top (its bottom stays on the support)."""
-    inpainter: str = "telea"
-    """'telea', 'ns', 'fsr' (OpenCV) or 'diffusion' (local diffusers pipeline, --inpaint-path)."""
+    inpainter: str = "fsr"
+    """'fsr' (opencv-contrib frequency-selective reconstruction; the default: best Out-PSNR of
+    the OpenCV methods on NEO-Sim, see benchmarks/RESULTS.md), 'telea', 'ns' (OpenCV) or
+    'diffusion' (local diffusers pipeline, --inpaint-path)."""
     inpaint_path: str | None = None
     """Local diffusers inpainting pipeline directory (for --inpainter diffusion)."""
     inpaint_prompt: str = "an empty table surface"
