@@ -28,6 +28,7 @@ from safetensors.torch import load_file, save_file
 from neoedit.cameras.rays import CameraTensors
 from neoedit.errors import NeoError
 from neoedit.fields.radiance import RadianceField, RadianceFieldConfig
+from neoedit.fields.suppressed import with_removals
 from neoedit.geometry import OrientedBox
 from neoedit.language.field import LanguageField, LanguageFieldConfig
 from neoedit.language.text import TextEncoderSpec
@@ -36,32 +37,6 @@ from neoedit.rendering.renderer import RenderConfig, render_image
 from neoedit.utils.io import atomic_directory, atomic_write_json
 
 FORMAT = "neoedit.scene/1"
-
-
-class SuppressedField(torch.nn.Module):
-    """A radiance field whose density is zero inside some boxes (DFF-style removal: the
-    rays are sampled as usual, the object's density is just switched off)."""
-
-    def __init__(self, field: RadianceField, boxes: list[OrientedBox]):
-        super().__init__()
-        self.field, self.boxes = field, boxes
-        self.aabb = field.aabb
-
-    def _outside(self, points: torch.Tensor) -> torch.Tensor:
-        keep = torch.ones(len(points), dtype=torch.bool, device=points.device)
-        for box in self.boxes:
-            local = (points - points.new_tensor(box.center_m)) @ points.new_tensor(box.rotation)
-            keep &= ~(local.abs() <= points.new_tensor(box.half_extents)).all(-1)
-        return keep
-
-    def density(self, points: torch.Tensor) -> torch.Tensor:
-        return self.field.density(points) * self._outside(points)
-
-    def forward(
-        self, points: torch.Tensor, directions: torch.Tensor
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        sigma, rgb = self.field(points, directions)
-        return sigma * self._outside(points), rgb
 
 
 @dataclass
@@ -128,12 +103,11 @@ class Scene:
     def renderable(self) -> tuple[torch.nn.Module, list[OrientedBox]]:
         """The field to render and the boxes to cut out of every ray, with this version's
         render-time removals applied (suppression wraps the field; resampling cuts rays)."""
-        field_: torch.nn.Module = self.field
-        if self.meta.suppress_boxes:
-            field_ = SuppressedField(
-                self.field, [OrientedBox.from_dict(b) for b in self.meta.suppress_boxes]
-            )
-        return field_, [OrientedBox.from_dict(b) for b in self.meta.cut_boxes]
+        return with_removals(
+            self.field,
+            cut=[OrientedBox.from_dict(b) for b in self.meta.cut_boxes],
+            suppress=[OrientedBox.from_dict(b) for b in self.meta.suppress_boxes],
+        )
 
     def render_image(
         self, cameras: CameraTensors, index: int, height: int, width: int

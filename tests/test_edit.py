@@ -20,8 +20,9 @@ from neoedit.edit.masks import grown_box, project_box_mask
 from neoedit.edit.views import VirtualViewConfig, virtual_cameras
 from neoedit.errors import NeoError
 from neoedit.eval.regions import box_mask
+from neoedit.fields.suppressed import SuppressedField
 from neoedit.geometry import OrientedBox
-from neoedit.scene import SuppressedField, load_scene
+from neoedit.scene import load_scene
 from tests.conftest import tiny_clip_vocab
 
 REFERENCE = Cameras.shared(np.eye(4)[None].repeat(1, 0), 60.0, 60.0, 40.0, 30.0, 80, 60)

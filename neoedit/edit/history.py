@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from neoedit.errors import NeoError
-from neoedit.scene import Scene, save_scene
+from neoedit.scene import Scene
 
 
 def check_output(parent_dir: Path, out: Path, overwrite: bool = False) -> None:
@@ -38,8 +38,3 @@ def new_version(parent: Scene, record: dict[str, Any]) -> Scene:
     meta.created = time.strftime("%Y-%m-%dT%H:%M:%S")
     meta.edits.append({**record, "parent": parent.meta.version_id, "version": meta.version_id})
     return child
-
-
-def write_version(out: Path, scene: Scene) -> None:
-    """Write the version atomically (weights, language field, metadata with the history)."""
-    save_scene(Path(out), scene)

@@ -2,7 +2,7 @@
 
 The edited field F~ starts from the current weights and is trained with
 
-    L = lambda_o * L_rgb(original views, M_o) + lambda_v * L_rgb(inpainted virtual views, M_v)
+    L = L_rgb(original views, M_o) + lambda_v * L_rgb(inpainted virtual views, M_v)
         + lambda_reg * L_reg(density inside the box -> 0)                     (eq. 4-5)
 
 (plus the scan's depth loss on M_o where it has depth). Every ``steps / rounds`` steps the
@@ -27,9 +27,10 @@ from neoedit.cameras.rays import CameraTensors
 from neoedit.data import SceneData
 from neoedit.edit.inpaint import Inpainter, inpaint_views
 from neoedit.edit.masks import project_box_mask
+from neoedit.fields.suppressed import with_removals
 from neoedit.geometry import OrientedBox
-from neoedit.rendering.renderer import render_rays
-from neoedit.scene import Scene, SuppressedField
+from neoedit.rendering.renderer import render_chunked, render_rays
+from neoedit.scene import Scene
 from neoedit.training.trainer import TrainConfig, Trainer
 from neoedit.utils.progress import make_progress
 
@@ -48,9 +49,10 @@ class RefineConfig:
     """Rays per step from the original views (their M_o pixels)."""
     virtual_rays: int = 512
     """Rays per step from the inpainted virtual views (their M_v pixels)."""
-    lambda_orig: float = 1.0
     lambda_virtual: float = 1.0
+    """Weight of the virtual-view loss, relative to the original-view loss (weight 1)."""
     lambda_reg: float = 1.0
+    """Weight of L_reg, relative to the original-view loss."""
     reg_points: int = 4096
     """Random points in the box per step for L_reg."""
     reg_floor_m: float = 0.01
@@ -102,18 +104,15 @@ def render_crops(
             indexing="ij",
         )
         rays = cams.rays(torch.full((v.numel(),), i, device=device), v.reshape(-1), u.reshape(-1))
-        rgb = []
-        for s in range(0, len(rays), scene.meta.render.chunk_rays):
-            r = render_rays(
-                scene_field,  # type: ignore[arg-type]
-                scene.grid,
-                rays[s : s + scene.meta.render.chunk_rays],
-                scene.meta.render,
-                scene.background,
-                boxes,
-            )
-            rgb.append(r["rgb"])
-        img = torch.cat(rgb).reshape(v.shape[0], v.shape[1], 3)
+        rgb = render_chunked(
+            scene_field,  # type: ignore[arg-type]
+            scene.grid,
+            rays,
+            scene.meta.render,
+            scene.background,
+            boxes,
+        )["rgb"]
+        img = rgb.reshape(v.shape[0], v.shape[1], 3)
         out.append((img.clamp(0, 1).cpu().numpy() * 255).round().astype(np.uint8))
     return out
 
@@ -218,15 +217,14 @@ def refine_removal(
         for k in range(rounds):
             xi = cfg.strength + (cfg.strength_final - cfg.strength) * (k / max(rounds - 1, 1))
             t = time.perf_counter()
-            # round 0 renders the removal preview (rays cut at the boxes), later rounds F~
-            if k == 0 and removal == "suppress":
-                rendered = render_crops(
-                    SuppressedField(scene.field, boxes), scene, virtual, window, []
-                )
-            else:
-                rendered = render_crops(
-                    scene.field, scene, virtual, window, boxes if k == 0 else []
-                )
+            # round 0 renders the removal preview (boxes cut or suppressed), later rounds F~
+            preview = k == 0 and boxes
+            field_, cut = with_removals(
+                scene.field,
+                cut=boxes if preview and removal == "resample" else [],
+                suppress=boxes if preview and removal == "suppress" else [],
+            )
+            rendered = render_crops(field_, scene, virtual, window, cut)
             timings["render_s"] += time.perf_counter() - t
             t = time.perf_counter()
             inpainted = inpaint_views(inpainter, rendered, masks, xi, cfg.grid)

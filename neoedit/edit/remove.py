@@ -18,21 +18,20 @@ import dataclasses
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import torch
 
 from neoedit.cameras.rays import CameraTensors
 from neoedit.data import load_scene_data
-from neoedit.edit.history import check_output, new_version, write_version
+from neoedit.edit.history import check_output, new_version
 from neoedit.edit.inpaint import make_inpainter
 from neoedit.edit.masks import grown_box
 from neoedit.edit.refine import RefineConfig, refine_removal
 from neoedit.edit.views import VirtualViewConfig, concat_cameras, virtual_cameras
 from neoedit.errors import NeoError
 from neoedit.geometry import OrientedBox
-from neoedit.scene import Scene, load_scene
+from neoedit.scene import Scene, load_scene, save_scene
 from neoedit.utils.io import write_png
 from neoedit.viz.contact_sheet import tile_images
 
@@ -79,7 +78,7 @@ def remove_object(
     t0 = time.perf_counter()
     parent = load_scene(scene_dir, device)
     work = [grown_box(b, cfg.margin_m) for b in boxes]
-    record: dict[str, Any] = {
+    record = {
         "type": "remove",
         "prompt": prompt,
         "boxes": [b.to_dict() for b in boxes],
@@ -109,10 +108,9 @@ def remove_object(
             ]
             strips.append((k, [*rendered, *masked, *inpainted]))
 
-        record["timings"] = refine_removal(
-            child, data, work, virtual, inpainter, cfg.refine, keep_strip
+        child.meta.edits[-1]["timings"] = refine_removal(
+            child, data, work, virtual, inpainter, cfg.refine, keep_strip, cfg.removal
         )
-        child.meta.suppress_boxes = [b for b in child.meta.suppress_boxes if b not in box_dicts]
     if child.surface_points_m is not None:
         pts = child.surface_points_m.cpu().numpy()
         keep = np.ones(len(pts), bool)
@@ -121,11 +119,8 @@ def remove_object(
         child.surface_points_m = child.surface_points_m[
             torch.as_tensor(keep, device=child.surface_points_m.device)
         ]
-    record["seconds"] = round(time.perf_counter() - t0, 2)
-    child.meta.edits[-1].update(
-        {k: record[k] for k in ("seconds",) + (("timings",) if "timings" in record else ())}
-    )
-    write_version(Path(out), child)
+    child.meta.edits[-1]["seconds"] = round(time.perf_counter() - t0, 2)
+    save_scene(Path(out), child)
     _write_report(report, parent, child, strips)
     return child
 

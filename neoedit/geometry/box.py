@@ -87,6 +87,13 @@ class OrientedBox:
         signs = np.array([[(i >> 0) & 1, (i >> 1) & 1, (i >> 2) & 1] for i in range(8)]) * 2 - 1
         return (signs * self.half_extents) @ self.rotation.T + np.asarray(self.center_m)
 
+    def extended_down(self, z_m: float) -> OrientedBox:
+        """The box with its bottom lowered to ``z_m`` (unchanged if it already reaches it)."""
+        top = self.center_m[2] + self.size_m[2] / 2
+        bottom = min(self.center_m[2] - self.size_m[2] / 2, z_m)
+        (cx, cy, _), (sx, sy, _) = self.center_m, self.size_m
+        return OrientedBox((cx, cy, (top + bottom) / 2), (sx, sy, top - bottom), self.yaw_deg)
+
     def transformed(self, transform: np.ndarray) -> OrientedBox:
         """The box moved by a rigid (4,4) world transform whose rotation is about z."""
         rot = transform[:3, :3]
@@ -107,18 +114,17 @@ class OrientedBox:
         )
 
     @classmethod
-    def fit_to_points(cls, points: np.ndarray, z_min_m: float | None = None) -> OrientedBox:
+    def fit_to_points(cls, points: np.ndarray) -> OrientedBox:
         """Tightest yaw-only box around points (N,3).
 
         Yaw and footprint come from the minimum-area rectangle of the points projected on
-        the ground plane (OpenCV), height from their z range; ``z_min_m`` extends the box
-        down to a support surface.
+        the ground plane (OpenCV), height from their z range.
         """
         pts = np.asarray(points, dtype=np.float64)
         if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < 3:
             raise NeoError("fitting a box needs at least 3 points (N,3)")
         (cx, cy), (w, h), angle = cv2.minAreaRect(pts[:, :2].astype(np.float32))
-        z0 = float(pts[:, 2].min()) if z_min_m is None else min(float(pts[:, 2].min()), z_min_m)
+        z0 = float(pts[:, 2].min())
         z1 = float(pts[:, 2].max())
         # Keep sx >= sy so the yaw is the direction of the long side, in (-90, 90].
         yaw = float(angle)

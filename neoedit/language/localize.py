@@ -111,7 +111,7 @@ def check_up(up: np.ndarray, max_angle_deg: float = 30.0) -> None:
     angle = float(np.degrees(np.arccos(np.clip(up[2], -1.0, 1.0))))
     if angle > max_angle_deg:
         raise NeoError(
-            f"the cameras' up direction is {angle:.0f} deg from world +z; boxes are yaw-only about "
+            f"the scene's up direction is {angle:.0f} deg from world +z; boxes are yaw-only about "
             "z, so orient the data z-up first (e.g. nerfstudio's ns-process-data orientation)"
         )
 
@@ -187,10 +187,7 @@ def localize(
     box = OrientedBox.fit_with_yaw(cluster, OrientedBox.fit_to_points(cluster).yaw_deg, cfg.trim)
     support = support_height(points_m, cluster, box, cfg)
     if support is not None:
-        (cx, cy, cz), (sx, sy, sz) = box.center_m, box.size_m
-        top = cz + sz / 2
-        bottom = min(cz - sz / 2, support)
-        box = OrientedBox((cx, cy, (top + bottom) / 2), (sx, sy, top - bottom), box.yaw_deg)
+        box = box.extended_down(support)
     return QueryResult(prompt, box, float(np.median(rel[members])), best, cluster)
 
 

@@ -140,6 +140,9 @@ def train_language(scene: Scene, data: SceneData, cfg: LanguageTrainConfig) -> S
     train_idx = torch.nonzero(valid)[:, 0]
     if len(train_idx) < 100:
         raise NeoError("too few surface points with a teacher label to train the language field")
+    # the training pairs move to the device once, not every step
+    points_d, targets_d = points.to(device), targets.to(device)
+    dino_d = dino_targets.to(device) if dino_targets is not None else None
     loss_ema = None
     with make_progress() as progress:
         task = progress.add_task("language", total=cfg.steps, status="")
@@ -147,10 +150,11 @@ def train_language(scene: Scene, data: SceneData, cfg: LanguageTrainConfig) -> S
             for group in optimizer.param_groups:
                 group["lr"] = cfg.lr * 0.1 ** (step / max(cfg.steps, 1))
             pick = train_idx[torch.randint(0, len(train_idx), (cfg.batch,), generator=generator)]
-            out = lang(points[pick].to(device))
-            loss = 1.0 - (out["language"] * targets[pick].to(device)).sum(-1).mean()
-            if dino_targets is not None:
-                loss = loss + torch.mean((out["dino"] - dino_targets[pick].to(device)) ** 2)
+            pick = pick.to(device)
+            out = lang(points_d[pick])
+            loss = 1.0 - (out["language"] * targets_d[pick]).sum(-1).mean()
+            if dino_d is not None:
+                loss = loss + torch.mean((out["dino"] - dino_d[pick]) ** 2)
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             optimizer.step()

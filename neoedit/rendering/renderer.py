@@ -170,6 +170,23 @@ def render_rays(
 
 
 @torch.no_grad()
+def render_chunked(
+    field: RadianceField,
+    grid: OccupancyGrid | None,
+    rays: RayBundle,
+    cfg: RenderConfig,
+    background: torch.Tensor,
+    boxes: Sequence[OrientedBox] = (),
+) -> dict[str, torch.Tensor]:
+    """rgb (N,3), depth_z (N,) [m], accumulation (N,) of many rays, in chunks, no gradients."""
+    parts: dict[str, list[torch.Tensor]] = {"rgb": [], "depth_z": [], "accumulation": []}
+    for start in range(0, len(rays), cfg.chunk_rays):
+        out = render_rays(field, grid, rays[start : start + cfg.chunk_rays], cfg, background, boxes)
+        for key in parts:
+            parts[key].append(out[key])
+    return {key: torch.cat(values) for key, values in parts.items()}
+
+
 def render_image(
     field: RadianceField,
     grid: OccupancyGrid | None,
@@ -182,14 +199,7 @@ def render_image(
     boxes: Sequence[OrientedBox] = (),
 ) -> dict[str, torch.Tensor]:
     """rgb (H,W,3), depth_z (H,W) [m], accumulation (H,W) of camera ``index``."""
-    rays = cameras.image_rays(index, height, width)
-    parts: dict[str, list[torch.Tensor]] = {"rgb": [], "depth_z": [], "accumulation": []}
-    for start in range(0, len(rays), cfg.chunk_rays):
-        out = render_rays(field, grid, rays[start : start + cfg.chunk_rays], cfg, background, boxes)
-        for key in parts:
-            parts[key].append(out[key])
-    return {
-        "rgb": torch.cat(parts["rgb"]).reshape(height, width, 3),
-        "depth_z": torch.cat(parts["depth_z"]).reshape(height, width),
-        "accumulation": torch.cat(parts["accumulation"]).reshape(height, width),
-    }
+    out = render_chunked(
+        field, grid, cameras.image_rays(index, height, width), cfg, background, boxes
+    )
+    return {key: value.reshape(height, width, *value.shape[1:]) for key, value in out.items()}

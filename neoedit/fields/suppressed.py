@@ -1,0 +1,44 @@
+"""Render-time removals of a radiance field: density suppression (the DFF-style baseline)
+and the boxes the renderer cuts out of every ray (removal by resampling)."""
+
+from __future__ import annotations
+
+import torch
+
+from neoedit.fields.radiance import RadianceField
+from neoedit.geometry import OrientedBox
+
+
+class SuppressedField(torch.nn.Module):
+    """A radiance field whose density is zero inside some boxes (DFF-style removal: the
+    rays are sampled as usual, the object's density is just switched off)."""
+
+    def __init__(self, field: RadianceField, boxes: list[OrientedBox]):
+        super().__init__()
+        self.field, self.boxes = field, boxes
+        self.aabb = field.aabb
+
+    def _outside(self, points: torch.Tensor) -> torch.Tensor:
+        keep = torch.ones(len(points), dtype=torch.bool, device=points.device)
+        for box in self.boxes:
+            local = (points - points.new_tensor(box.center_m)) @ points.new_tensor(box.rotation)
+            keep &= ~(local.abs() <= points.new_tensor(box.half_extents)).all(-1)
+        return keep
+
+    def density(self, points: torch.Tensor) -> torch.Tensor:
+        return self.field.density(points) * self._outside(points)
+
+    def forward(
+        self, points: torch.Tensor, directions: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        sigma, rgb = self.field(points, directions)
+        return sigma * self._outside(points), rgb
+
+
+def with_removals(
+    field: RadianceField, cut: list[OrientedBox], suppress: list[OrientedBox]
+) -> tuple[torch.nn.Module, list[OrientedBox]]:
+    """The field to render and the boxes to cut out of every ray: ``suppress`` boxes wrap
+    the field (density zero inside, rays sampled as usual), ``cut`` boxes go to the renderer
+    (no sample inside them)."""
+    return (SuppressedField(field, suppress) if suppress else field), list(cut)
