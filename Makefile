@@ -18,18 +18,22 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 # The end-to-end demo on embedded defaults: simulate, train (field + language), render,
-# evaluate, find the mug by name.
+# evaluate, find the mug by name, remove it (a new version) and score that against the
+# post-removal scan.
 demo: $(STAMP)
 	$(VENV)/bin/neo sim scene examples/demo_scene.yaml --out $(DEMO_OUT)/sim --overwrite
-	rm -rf $(DEMO_OUT)/scene $(DEMO_OUT)/render $(DEMO_OUT)/eval_images $(DEMO_OUT)/query
+	rm -rf $(DEMO_OUT)/scene $(DEMO_OUT)/render $(DEMO_OUT)/eval_images $(DEMO_OUT)/query $(DEMO_OUT)/no_mug
 	$(VENV)/bin/neo train $(DEMO_OUT)/sim/pre --out $(DEMO_OUT)/scene --max-steps 600 --eval-every 200
 	$(VENV)/bin/neo render $(DEMO_OUT)/scene --views spiral --n-frames 36 --video --out $(DEMO_OUT)/render
 	$(VENV)/bin/neo eval $(DEMO_OUT)/scene --data $(DEMO_OUT)/sim/pre --json $(DEMO_OUT)/eval.json --images $(DEMO_OUT)/eval_images
 	$(VENV)/bin/neo query $(DEMO_OUT)/scene "mug" --json $(DEMO_OUT)/query.json --out $(DEMO_OUT)/query --image-scale 2
+	$(VENV)/bin/neo remove $(DEMO_OUT)/scene "mug" --out $(DEMO_OUT)/no_mug
+	$(VENV)/bin/neo eval $(DEMO_OUT)/no_mug --data $(DEMO_OUT)/sim/post --json $(DEMO_OUT)/no_mug_eval.json
 	@echo "contact sheets:  $(DEMO_OUT)/sim/*/contact_sheet.png"
 	@echo "spiral video:    $(DEMO_OUT)/render/video.gif"
 	@echo "held-out views (render | ground truth): $(DEMO_OUT)/eval_images/"
 	@echo "query 'mug' (box + relevancy): $(DEMO_OUT)/query/query.png, box: $(DEMO_OUT)/query.json"
+	@echo "mug removed (new version):     $(DEMO_OUT)/no_mug/report/before_after.png, vs post scan: $(DEMO_OUT)/no_mug_eval.json"
 
 test: $(STAMP)
 	$(PY) -m pytest tests

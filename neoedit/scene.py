@@ -3,7 +3,8 @@
 Layout of a scene directory::
 
     scene.json            metadata: configs, scene box, background, training state, lineage
-    field.safetensors     field weights and the occupancy grid
+    field.safetensors     field weights and the occupancy grid (edited versions: also the
+                          patches their local edits trained, ``patch{i}.*``)
     language.safetensors  language field weights + the surface point cloud queries run on
                           (only once a language field is trained)
     optimizer.safetensors Adam state (only while training may resume)
@@ -27,7 +28,8 @@ from safetensors.torch import load_file, save_file
 
 from neoedit.cameras.rays import CameraTensors
 from neoedit.errors import NeoError
-from neoedit.fields.radiance import RadianceField, RadianceFieldConfig
+from neoedit.fields.patched import PatchedField
+from neoedit.fields.radiance import Field, RadianceField, RadianceFieldConfig
 from neoedit.fields.suppressed import with_removals
 from neoedit.geometry import OrientedBox
 from neoedit.language.field import LanguageField, LanguageFieldConfig
@@ -76,6 +78,9 @@ class SceneMeta:
     """Boxes cut out of every ray at render time (removal by resampling, no training)."""
     suppress_boxes: list[dict[str, Any]] = dataclasses.field(default_factory=list)
     """Boxes whose density is zeroed at render time (DFF-style suppression baseline)."""
+    patches: list[dict[str, Any]] = dataclasses.field(default_factory=list)
+    """Local edits in the weights: ``{"region": [boxes], "version": id}`` per patch field,
+    which answers for every point inside its boxes (later patches over earlier ones)."""
     edits: list[dict[str, Any]] = dataclasses.field(default_factory=list)
     """Edit history from the original scan to this version (type, prompt, box, parameters,
     parent version, seconds), oldest first."""
@@ -87,7 +92,8 @@ class SceneMeta:
 
 @dataclass
 class Scene:
-    field: RadianceField
+    field: RadianceField | PatchedField
+    """The radiance field; a :class:`PatchedField` once local edits were trained."""
     grid: OccupancyGrid
     meta: SceneMeta
     language: LanguageField | None = None
@@ -100,7 +106,14 @@ class Scene:
             self.meta.background_rgb, dtype=torch.float32, device=self.field.aabb.device
         )
 
-    def renderable(self) -> tuple[torch.nn.Module, list[OrientedBox]]:
+    def patched(self) -> PatchedField:
+        """The field as a :class:`PatchedField` (wrapping it on first use) so an edit can
+        add a patch; ``meta.patches`` must be kept in step by the caller."""
+        if not isinstance(self.field, PatchedField):
+            self.field = PatchedField(self.field)
+        return self.field
+
+    def renderable(self) -> tuple[Field, list[OrientedBox]]:
         """The field to render and the boxes to cut out of every ray, with this version's
         render-time removals applied (suppression wraps the field; resampling cuts rays)."""
         return with_removals(
@@ -116,7 +129,7 @@ class Scene:
         renders (render-time removals included)."""
         field_, boxes = self.renderable()
         return render_image(
-            field_,  # type: ignore[arg-type]  # a RadianceField or its suppressed wrapper
+            field_,
             self.grid,
             cameras,
             index,
@@ -138,9 +151,7 @@ class Scene:
 def save_scene(path: Path, scene: Scene, optimizer: torch.optim.Optimizer | None = None) -> None:
     """Write (or atomically replace) a scene directory."""
     with atomic_directory(Path(path), overwrite=True) as tmp:
-        tensors = {
-            f"field.{k}": v.detach().cpu().contiguous() for k, v in scene.field.state_dict().items()
-        }
+        tensors = _field_tensors(scene.field)
         tensors["grid.density"] = scene.grid.density.detach().cpu().contiguous()
         tensors["grid.n_updates"] = scene.grid.n_updates.detach().cpu().reshape(1)
         save_file(tensors, str(tmp / "field.safetensors"))
@@ -187,9 +198,13 @@ def load_scene(path: Path, device: torch.device | str = "cpu") -> Scene:
     except Exception as e:  # safetensors raises its own error types for corrupt files
         raise NeoError(f"{weights}: cannot read weights: {e}") from None
     scene = Scene.create(meta, device="cpu")
-    state = {k.removeprefix("field."): v for k, v in tensors.items() if k.startswith("field.")}
     try:
-        scene.field.load_state_dict(state)
+        scene.field.load_state_dict(_state(tensors, "field."))
+        if meta.patches:
+            patched = scene.patched()
+            for i, p in enumerate(meta.patches):
+                region = [OrientedBox.from_dict(b) for b in p["region"]]
+                patched.add_patch(region).load_state_dict(_state(tensors, f"patch{i}."))
         scene.grid.density.copy_(tensors["grid.density"])
         scene.grid.n_updates.copy_(tensors["grid.n_updates"][0])
         scene.grid.refresh_mask()
@@ -202,6 +217,23 @@ def load_scene(path: Path, device: torch.device | str = "cpu") -> Scene:
     scene.field.to(device)
     scene.grid.to(device)
     return scene
+
+
+def _field_tensors(field: RadianceField | PatchedField) -> dict[str, torch.Tensor]:
+    """Flat tensors of a field: the base under ``field.``, patch i under ``patch{i}.``."""
+    parts: list[tuple[str, torch.nn.Module]] = [("field.", field)]
+    if isinstance(field, PatchedField):
+        parts = [("field.", field.base)]
+        parts += [(f"patch{i}.", p) for i, p in enumerate(field.patches)]
+    return {
+        prefix + k: v.detach().cpu().contiguous()
+        for prefix, module in parts
+        for k, v in module.state_dict().items()
+    }
+
+
+def _state(tensors: dict[str, torch.Tensor], prefix: str) -> dict[str, torch.Tensor]:
+    return {k.removeprefix(prefix): v for k, v in tensors.items() if k.startswith(prefix)}
 
 
 def _load_language(path: Path, scene: Scene, meta: LanguageMeta) -> None:

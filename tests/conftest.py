@@ -7,6 +7,7 @@ import string
 from pathlib import Path
 
 import pytest
+from hypothesis import settings
 
 from neoedit.fields.hashgrid import HashGridConfig
 from neoedit.fields.radiance import RadianceFieldConfig
@@ -15,6 +16,10 @@ from neoedit.rendering.renderer import RenderConfig
 from neoedit.sim.spec import ScanSpec
 from neoedit.sim.suite import benchmark_scenes
 from neoedit.training.trainer import TrainConfig, train
+
+# property tests draw the same examples on every run (CI must not fail by chance)
+settings.register_profile("deterministic", derandomize=True, database=None)
+settings.load_profile("deterministic")
 
 TINY_SCAN = ScanSpec(width=64, height=48, n_train=10, n_eval=3)
 TINY_FIELD = RadianceFieldConfig(

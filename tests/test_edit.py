@@ -16,7 +16,7 @@ from neoedit.cameras import Cameras
 from neoedit.cli import main
 from neoedit.data import load_scene_data
 from neoedit.edit.inpaint import OpenCVInpainter, inpaint_views, make_inpainter, split_2x2, tile_2x2
-from neoedit.edit.masks import grown_box, project_box_mask
+from neoedit.edit.masks import project_box_mask
 from neoedit.edit.views import VirtualViewConfig, virtual_cameras
 from neoedit.errors import NeoError
 from neoedit.eval.regions import box_mask
@@ -46,7 +46,15 @@ def test_projected_box_mask_matches_per_pixel_ray_test(cx, cy, sx, sy, sz, yaw, 
     moved[0, :3, 3] += np.array([0.15, -0.1, 0.05])
     cams = Cameras(moved, cams.fx, cams.fy, cams.cx, cams.cy, cams.width, cams.height)
     for i in range(len(cams)):
-        assert np.array_equal(project_box_mask(cams, i, box), box_mask(cams, i, box))
+        fast, exact = project_box_mask(cams, i, box), box_mask(cams, i, box)
+        # equal, up to pixel centres lying exactly on a silhouette edge (float ties), which
+        # can only be on the boundary of both masks
+        differ = fast != exact
+        padded = np.pad(exact, 1, mode="edge")
+        boundary = np.zeros_like(exact)
+        for dv, du in ((0, 1), (2, 1), (1, 0), (1, 2)):
+            boundary |= padded[dv : dv + exact.shape[0], du : du + exact.shape[1]] != exact
+        assert not (differ & ~boundary).any() and differ.sum() <= 2
 
 
 def test_virtual_views_look_at_the_box_on_a_rising_spiral():
@@ -282,26 +290,24 @@ def test_remove_end_to_end(trained: Path, sim_root: Path, tmp_path: Path, capsys
         sig_before = parent.field.density(pts_in)
         sig_after = edited.field.density(pts_in)
     assert float(sig_before.mean()) > 20 * max(float(sig_after.mean()), 1e-3)
+    # the edit is a local patch: every pixel whose ray misses its region renders exactly as
+    # in the parent, in every training view
+    assert len(edited.meta.patches) == 1
+    region = OrientedBox.from_dict(edited.meta.patches[0]["region"][0])
+    assert region.contains(np.array([box.center_m]))[0]
     data = load_scene_data(sim_root / "removal_1" / "pre")
-    far_view = int(
-        np.argmin([box_mask(data.cameras, i, grown_box(box, 0.05)).sum() for i in range(len(data))])
-    )
     from neoedit.cameras.rays import CameraTensors
 
     cams = CameraTensors(data.cameras)
-    ra = parent.render_image(cams, far_view, data.height, data.width)
-    rb = edited.render_image(cams, far_view, data.height, data.width)
-    keep = ~torch.as_tensor(box_mask(data.cameras, far_view, grown_box(box, 0.05)))
-    keep &= (ra["accumulation"] > 0.5) & (rb["accumulation"] > 0.5)
-    depth_change = (ra["depth_z"] - rb["depth_z"]).abs()[keep]
-    # the tiny test field (2^14 hash entries per level) shares entries all over the scene, so
-    # the edit leaks more than on a real scene (there: 0.5 mm median depth change, and the
-    # Full-PSNR figures in benchmarks/RESULTS.md)
-    assert float(depth_change.median()) < 0.02  # away from the box the geometry stays
-    gt = torch.as_tensor(data.images[far_view]).float() / 255
-    psnr_before = -10 * np.log10(float(torch.mean((ra["rgb"] - gt)[keep] ** 2)))
-    psnr_after = -10 * np.log10(float(torch.mean((rb["rgb"] - gt)[keep] ** 2)))
-    assert psnr_after > psnr_before - 3.0
+    changed = 0
+    for view in np.linspace(0, len(data) - 1, 3).round().astype(int):
+        ra = parent.render_image(cams, int(view), data.height, data.width)
+        rb = edited.render_image(cams, int(view), data.height, data.width)
+        outside = ~torch.as_tensor(project_box_mask(data.cameras, int(view), region))
+        assert torch.allclose(ra["rgb"][outside], rb["rgb"][outside], atol=1e-5)
+        assert torch.allclose(ra["depth_z"][outside], rb["depth_z"][outside], atol=1e-5)
+        changed += int(((ra["rgb"] - rb["rgb"]).abs().amax(-1) > 0.05)[~outside].sum())
+    assert changed > 0  # and inside it the mug is gone
 
     # an edit never writes over its input, and refuses an existing output
     assert main(["remove", str(trained), "--box", str(box_file), "--out", str(trained)]) == 2

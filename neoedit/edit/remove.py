@@ -23,16 +23,17 @@ import numpy as np
 import torch
 
 from neoedit.cameras.rays import CameraTensors
-from neoedit.data import load_scene_data
 from neoedit.edit.history import check_output, new_version
-from neoedit.edit.inpaint import make_inpainter
-from neoedit.edit.masks import grown_box
+from neoedit.edit.inpaint import Inpainter, make_inpainter
+from neoedit.edit.masks import grown_box, grown_box_clear_of
 from neoedit.edit.refine import RefineConfig, refine_removal
 from neoedit.edit.views import VirtualViewConfig, concat_cameras, virtual_cameras
 from neoedit.errors import NeoError
 from neoedit.geometry import OrientedBox
+from neoedit.rendering.export import scene_cameras
 from neoedit.scene import Scene, load_scene, save_scene
 from neoedit.utils.io import write_png
+from neoedit.viz.boxes import scaled_cameras
 from neoedit.viz.contact_sheet import tile_images
 
 REMOVAL_MODES = ("resample", "suppress")
@@ -47,7 +48,12 @@ class RemoveConfig:
     """Complete what the object hid (virtual views + inpainting + training). Off: the instant
     removal preview, no training."""
     margin_m: float = 0.01
-    """The box is grown by this much on its sides and top (its bottom stays on the support)."""
+    """The box is grown by this much on its sides and top (its bottom stays on the support);
+    a side stops short of a neighbouring object (surface points whose language feature
+    differs from the removed object's), so the edit does not cut into it."""
+    neighbour_similarity: float = 0.8
+    """Surface points next to the box whose language feature has a cosine similarity below
+    this to the mean feature inside the box count as another object."""
     inpainter: str = "fsr"
     """'fsr' (opencv-contrib frequency-selective reconstruction; the default: best Out-PSNR of
     the OpenCV methods on NEO-Sim, see benchmarks/RESULTS.md), 'telea', 'ns' (OpenCV) or
@@ -68,8 +74,11 @@ def remove_object(
     prompt: str | None = None,
     device: torch.device | str = "cpu",
     overwrite: bool = False,
+    inpainter: Inpainter | None = None,
 ) -> Scene:
-    """Write a new version of the scene at ``out`` with ``boxes`` removed; returns it."""
+    """Write a new version of the scene at ``out`` with ``boxes`` removed; returns it.
+    ``inpainter`` overrides ``cfg.inpainter`` with any object of the :class:`Inpainter`
+    protocol (your own 2-D inpainting model)."""
     if cfg.removal not in REMOVAL_MODES:
         raise NeoError(f"unknown removal {cfg.removal!r} (choose from {', '.join(REMOVAL_MODES)})")
     if not boxes:
@@ -77,13 +86,17 @@ def remove_object(
     check_output(scene_dir, out, overwrite)
     t0 = time.perf_counter()
     parent = load_scene(scene_dir, device)
-    work = [grown_box(b, cfg.margin_m) for b in boxes]
+    seated = [seated_on_support(parent, b) for b in boxes]
+    work = [grown_box_clear_of(b, cfg.margin_m, neighbour_points(parent, b, cfg)) for b in seated]
     record = {
         "type": "remove",
         "prompt": prompt,
         "boxes": [b.to_dict() for b in boxes],
+        "edit_boxes": [b.to_dict() for b in work],
         "removal": cfg.removal,
-        "inpaint": cfg.inpainter if cfg.inpaint else None,
+        "inpaint": (type(inpainter).__name__ if inpainter else cfg.inpainter)
+        if cfg.inpaint
+        else None,
         "config": dataclasses.asdict(cfg),
     }
     child = new_version(parent, record)
@@ -96,9 +109,12 @@ def remove_object(
         else:
             child.meta.suppress_boxes += box_dicts
     else:
-        inpainter = make_inpainter(cfg.inpainter, cfg.inpaint_path, cfg.inpaint_prompt, str(device))
-        data = load_scene_data(Path(parent.meta.data_path))
-        train_cams = data.cameras.subset(data.split["train"])
+        if inpainter is None:
+            inpainter = make_inpainter(
+                cfg.inpainter, cfg.inpaint_path, cfg.inpaint_prompt, str(device)
+            )
+        cameras, _, split = scene_cameras(Path(parent.meta.data_path))
+        train_cams = cameras.subset(split["train"])
         virtual = concat_cameras([virtual_cameras(b, train_cams, cfg.views) for b in boxes])
 
         def keep_strip(k, rendered, masks, inpainted):
@@ -109,7 +125,7 @@ def remove_object(
             strips.append((k, [*rendered, *masked, *inpainted]))
 
         child.meta.edits[-1]["timings"] = refine_removal(
-            child, data, work, virtual, inpainter, cfg.refine, keep_strip, cfg.removal
+            child, work, virtual, inpainter, cfg.refine, keep_strip, cfg.removal, train_cams
         )
     if child.surface_points_m is not None:
         pts = child.surface_points_m.cpu().numpy()
@@ -125,14 +141,60 @@ def remove_object(
     return child
 
 
+def seated_on_support(scene: Scene, box: OrientedBox, ring_m: float = 0.03) -> OrientedBox:
+    """``box`` with its bottom raised to the support surface when it reaches below it (a
+    query box can end a few mm under the table top; cutting that would open a hole in the
+    table). The support is the median height of the surface points in a ring around the
+    box's footprint near its bottom; the box is returned unchanged without such points."""
+    if scene.surface_points_m is None:
+        return box
+    pts = scene.surface_points_m.cpu().numpy().astype(np.float64)
+    local = box.world_to_local(pts)
+    half = box.half_extents
+    outside = (np.abs(local[:, :2]) > half[:2] + 0.005).any(1)
+    near = (np.abs(local[:, :2]) <= half[:2] + ring_m).all(1)
+    low = np.abs(local[:, 2] + half[2]) < 0.02
+    ring = outside & near & low
+    if int(ring.sum()) < 20:
+        return box
+    support = float(np.median(pts[ring, 2]))
+    bottom = box.center_m[2] - box.size_m[2] / 2
+    top = box.center_m[2] + box.size_m[2] / 2
+    return box if support <= bottom or support >= top - 0.005 else box.with_bottom(support)
+
+
+@torch.no_grad()
+def neighbour_points(scene: Scene, box: OrientedBox, cfg: RemoveConfig) -> np.ndarray:
+    """(K,3) surface points in the margin around ``box`` that belong to something else: above
+    the box's bottom (not the support surface) and unlike the object in the language field.
+    Empty for scenes without a language field."""
+    if scene.language is None or scene.surface_points_m is None or cfg.margin_m <= 0:
+        return np.zeros((0, 3))
+    pts = scene.surface_points_m.cpu().numpy().astype(np.float64)
+    local = box.world_to_local(pts)
+    inside = box.contains(pts)
+    shell = grown_box(box, cfg.margin_m).contains(pts) & ~inside
+    shell &= local[:, 2] > -box.half_extents[2] + 0.01  # not the support (+-5 mm in NEO-Sim)
+    if not inside.any() or not shell.any():
+        return np.zeros((0, 3))
+    device = scene.surface_points_m.device
+    feats = scene.language.language(
+        torch.as_tensor(pts[inside | shell], dtype=torch.float32, device=device)
+    ).float()
+    feats = torch.nn.functional.normalize(feats, dim=-1)
+    own = torch.nn.functional.normalize(
+        feats[torch.as_tensor(inside[inside | shell])].mean(0), dim=0
+    )
+    similar = (feats[torch.as_tensor(shell[inside | shell])] @ own).cpu().numpy()
+    return pts[shell][similar < cfg.neighbour_similarity]
+
+
 @torch.no_grad()
 def _write_report(
     report: Path, parent: Scene, child: Scene, strips: list[tuple[int, list[np.ndarray]]]
 ) -> None:
-    """before_after.png (three training views, before | after) and virtual_views_round_K.png
+    """before_after.png (three training views, ~160 px wide, before | after) and virtual_views_round_K.png
     (rows: rendered, masked, inpainted)."""
-    from neoedit.rendering.export import scene_cameras
-
     for k, tiles in strips:
         n = len(tiles) // 3
         write_png(report / f"virtual_views_round_{k}.png", tile_images(tiles, cols=n))
@@ -142,6 +204,8 @@ def _write_report(
         return
     train = split["train"]
     pick = train[np.linspace(0, len(train) - 1, min(3, len(train))).round().astype(int)]
+    # a picture, not a measurement: at most ~160 px wide (halves a 320 px scan's cost)
+    cameras = scaled_cameras(cameras, min(1.0, 160.0 / float(np.max(cameras.width))))
     cams = CameraTensors(cameras, parent.field.aabb.device)
     tiles, labels = [], []
     for i in pick:

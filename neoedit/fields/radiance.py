@@ -7,6 +7,7 @@ Queryable at arbitrary world points (``density``, ``forward``), clonable with
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import torch
 from torch import nn
@@ -27,6 +28,20 @@ class RadianceFieldConfig:
     """Width of the colour MLP (two hidden layers)."""
     density_bias: float = -1.0
     """Initial pre-activation bias of the density (exp activation)."""
+
+
+class Field(Protocol):
+    """What the renderers need of a field (a :class:`RadianceField`, a patched or suppressed
+    one): its scene box and density / colour at world points."""
+
+    @property
+    def aabb(self) -> torch.Tensor: ...
+
+    def density(self, points: torch.Tensor) -> torch.Tensor: ...
+
+    def __call__(
+        self, points: torch.Tensor, directions: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]: ...
 
 
 class TruncExp(torch.autograd.Function):

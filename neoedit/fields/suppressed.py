@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import torch
 
-from neoedit.fields.radiance import RadianceField
+from neoedit.fields.patched import inside_box
+from neoedit.fields.radiance import Field
 from neoedit.geometry import OrientedBox
 
 
@@ -13,7 +14,7 @@ class SuppressedField(torch.nn.Module):
     """A radiance field whose density is zero inside some boxes (DFF-style removal: the
     rays are sampled as usual, the object's density is just switched off)."""
 
-    def __init__(self, field: RadianceField, boxes: list[OrientedBox]):
+    def __init__(self, field: Field, boxes: list[OrientedBox]):
         super().__init__()
         self.field, self.boxes = field, boxes
         self.aabb = field.aabb
@@ -21,8 +22,7 @@ class SuppressedField(torch.nn.Module):
     def _outside(self, points: torch.Tensor) -> torch.Tensor:
         keep = torch.ones(len(points), dtype=torch.bool, device=points.device)
         for box in self.boxes:
-            local = (points - points.new_tensor(box.center_m)) @ points.new_tensor(box.rotation)
-            keep &= ~(local.abs() <= points.new_tensor(box.half_extents)).all(-1)
+            keep &= ~inside_box(points, box)
         return keep
 
     def density(self, points: torch.Tensor) -> torch.Tensor:
@@ -36,8 +36,8 @@ class SuppressedField(torch.nn.Module):
 
 
 def with_removals(
-    field: RadianceField, cut: list[OrientedBox], suppress: list[OrientedBox]
-) -> tuple[torch.nn.Module, list[OrientedBox]]:
+    field: Field, cut: list[OrientedBox], suppress: list[OrientedBox]
+) -> tuple[Field, list[OrientedBox]]:
     """The field to render and the boxes to cut out of every ray: ``suppress`` boxes wrap
     the field (density zero inside, rays sampled as usual), ``cut`` boxes go to the renderer
     (no sample inside them)."""

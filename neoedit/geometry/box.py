@@ -89,10 +89,15 @@ class OrientedBox:
 
     def extended_down(self, z_m: float) -> OrientedBox:
         """The box with its bottom lowered to ``z_m`` (unchanged if it already reaches it)."""
+        return self.with_bottom(min(self.center_m[2] - self.size_m[2] / 2, z_m))
+
+    def with_bottom(self, z_m: float) -> OrientedBox:
+        """The box with its bottom face moved to height ``z_m`` (top kept; z-up boxes)."""
         top = self.center_m[2] + self.size_m[2] / 2
-        bottom = min(self.center_m[2] - self.size_m[2] / 2, z_m)
+        if z_m >= top:
+            raise NeoError(f"bottom {z_m:.4f} m is not below the box top {top:.4f} m")
         (cx, cy, _), (sx, sy, _) = self.center_m, self.size_m
-        return OrientedBox((cx, cy, (top + bottom) / 2), (sx, sy, top - bottom), self.yaw_deg)
+        return OrientedBox((cx, cy, (top + z_m) / 2), (sx, sy, top - z_m), self.yaw_deg)
 
     def transformed(self, transform: np.ndarray) -> OrientedBox:
         """The box moved by a rigid (4,4) world transform whose rotation is about z."""

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import torch
 
 from neoedit.cameras.rays import CameraTensors, RayBundle
-from neoedit.fields.radiance import RadianceField
+from neoedit.fields.radiance import Field
 from neoedit.geometry import OrientedBox
 from neoedit.rendering.intervals import RayIntervals, cut_boxes, near_far_intervals, ray_aabb
 from neoedit.rendering.occupancy import OccupancyGrid
@@ -60,7 +60,7 @@ class RaySamples:
 
 
 def ray_intervals(
-    field: RadianceField, rays: RayBundle, near_m: float, boxes: Sequence[OrientedBox] = ()
+    field: Field, rays: RayBundle, near_m: float, boxes: Sequence[OrientedBox] = ()
 ) -> RayIntervals:
     """Valid part of each ray: inside the scene box, beyond ``near_m``, outside every removal box."""
     t0, t1 = ray_aabb(rays.origins, rays.directions, field.aabb)
@@ -70,7 +70,7 @@ def ray_intervals(
 
 
 def sample_rays(
-    field: RadianceField,
+    field: Field,
     grid: OccupancyGrid | None,
     rays: RayBundle,
     cfg: RenderConfig,
@@ -136,7 +136,7 @@ def sample_rays(
 
 
 def render_rays(
-    field: RadianceField,
+    field: Field,
     grid: OccupancyGrid | None,
     rays: RayBundle,
     cfg: RenderConfig,
@@ -171,7 +171,7 @@ def render_rays(
 
 @torch.no_grad()
 def render_chunked(
-    field: RadianceField,
+    field: Field,
     grid: OccupancyGrid | None,
     rays: RayBundle,
     cfg: RenderConfig,
@@ -188,7 +188,7 @@ def render_chunked(
 
 
 def render_image(
-    field: RadianceField,
+    field: Field,
     grid: OccupancyGrid | None,
     cameras: CameraTensors,
     index: int,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 
 from neoedit.cameras.rays import RayBundle
-from neoedit.fields.radiance import RadianceField
+from neoedit.fields.radiance import Field
 from neoedit.rendering.occupancy import OccupancyGrid
 from neoedit.rendering.renderer import RenderConfig, render_rays
 
@@ -22,7 +22,7 @@ def median_depth(weights: torch.Tensor, t_mid: torch.Tensor) -> torch.Tensor:
 
 @torch.no_grad()
 def render_surface(
-    field: RadianceField, grid: OccupancyGrid | None, rays: RayBundle, cfg: RenderConfig
+    field: Field, grid: OccupancyGrid | None, rays: RayBundle, cfg: RenderConfig
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Surface points (N,3) [m] at the median depth of each ray, and accumulation (N,)."""
     points, accs = [], []

@@ -17,7 +17,8 @@ from neoedit.cameras.cameras import orbit_center
 from neoedit.cameras.rays import CameraTensors
 from neoedit.data import SceneData, load_scene_data
 from neoedit.errors import NeoError
-from neoedit.fields.radiance import RadianceFieldConfig
+from neoedit.fields.patched import PatchedField
+from neoedit.fields.radiance import RadianceField, RadianceFieldConfig
 from neoedit.language.training import LanguageTrainConfig, resolve_teacher, train_language
 from neoedit.rendering.occupancy import OccupancyGridConfig
 from neoedit.rendering.renderer import RenderConfig, render_image, render_rays
@@ -128,6 +129,8 @@ class Trainer:
         self.generator = torch.Generator(device=device).manual_seed(cfg.seed)
         self.extra_losses: list[Callable[[int], torch.Tensor]] = []
         """More loss terms, called with the step number (edits add theirs here)."""
+        if not isinstance(scene.field, RadianceField):
+            raise NeoError("only an unedited radiance field can be trained from the scan")
         enc = list(scene.field.encoding.parameters())
         mlp = [p for n, p in scene.field.named_parameters() if not n.startswith("encoding.")]
         self.optimizer = torch.optim.Adam(
@@ -321,10 +324,21 @@ def train(
             train=dataclasses.asdict(cfg),
         )
         scene = Scene.create(meta, dev, seed=cfg.seed)
-    trainer = Trainer(data, scene, cfg, Path(out), dev)
-    if resume:
-        load_optimizer_state(out, scene.field, trainer.optimizer)
-    scene = trainer.run()
+    if isinstance(scene.field, PatchedField):
+        # an edited version: its local patches are trained by their edits, not by the scan
+        if cfg.max_steps > scene.meta.step:
+            raise NeoError(
+                f"{out} is an edited version ({len(scene.meta.patches)} local edit(s)); its "
+                "radiance field cannot be trained further (train the original scan, or resume "
+                "with no more steps to retrain only the language field)"
+            )
+        optimizer = None
+    else:
+        trainer = Trainer(data, scene, cfg, Path(out), dev)
+        if resume:
+            load_optimizer_state(out, scene.field, trainer.optimizer)
+        scene = trainer.run()
+        optimizer = trainer.optimizer
     if language is not None:
         if resolve_teacher(language, data) is None:
             Console(stderr=True).print(
@@ -333,5 +347,5 @@ def train(
             )
         else:
             train_language(scene, data, language)
-            save_scene(Path(out), scene, trainer.optimizer)
+            save_scene(Path(out), scene, optimizer)
     return scene

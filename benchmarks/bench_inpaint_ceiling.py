@@ -1,0 +1,101 @@
+"""How much of the gap to the oracle is the 2-D inpainter's? (a diagnostic, not a method)
+
+    python benchmarks/bench_inpaint_ceiling.py --scenes removal_1 removal_2
+
+Runs `neo remove`'s default pipeline twice per scene with the same box: once with the
+default inpainter, once with a *perfect* one that returns what the oracle field (trained
+on the post scan, which saw the table under the object) renders in the same virtual-view
+crops. The second Out-PSNR is the ceiling of the rest of the pipeline (virtual views,
+visibility, patch training, refinement) with ideal 2-D inpainting. Needs bench_remove.py's
+outputs (pre scenes, query boxes, oracle fields).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from neoedit.data import load_scene_data
+from neoedit.edit.inpaint import tile_2x2
+from neoedit.edit.masks import grown_box_clear_of, project_box_mask
+from neoedit.edit.refine import crop_window, render_crops
+from neoedit.edit.remove import (
+    RemoveConfig,
+    neighbour_points,
+    remove_object,
+    seated_on_support,
+)
+from neoedit.edit.views import virtual_cameras
+from neoedit.eval.evaluate import evaluate
+from neoedit.geometry import OrientedBox
+from neoedit.rendering.export import scene_cameras
+from neoedit.scene import load_scene
+
+
+class ReplayInpainter:
+    """Fills the mask with the oracle's render of the same composite (in request order)."""
+
+    def __init__(self, composites: list[np.ndarray]):
+        self.composites, self.calls = composites, 0
+
+    def inpaint(self, image: np.ndarray, mask: np.ndarray, strength: float) -> np.ndarray:
+        truth = self.composites[self.calls % len(self.composites)]
+        self.calls += 1
+        return np.where(mask[..., None], truth, image)
+
+
+def oracle_composites(pre_dir: Path, oracle_dir: Path, box: OrientedBox, cfg: RemoveConfig):
+    parent, oracle = load_scene(pre_dir), load_scene(oracle_dir)
+    seated = seated_on_support(parent, box)  # the working box exactly as remove_object makes it
+    work = grown_box_clear_of(seated, cfg.margin_m, neighbour_points(parent, seated, cfg))
+    cameras, _, split = scene_cameras(Path(parent.meta.data_path))
+    virtual = virtual_cameras(box, cameras.subset(split["train"]), cfg.views)
+    masks = [project_box_mask(virtual, i, work) for i in range(len(virtual))]
+    window = crop_window(masks, cfg.refine.crop_margin_px)
+    crops, _ = render_crops(oracle.field, oracle, virtual, window, [])
+    return [tile_2x2(crops[k : k + 4]) for k in range(0, len(crops) - 3, 4)]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--data", type=Path, default=Path("outputs/neosim_standard"))
+    parser.add_argument("--scenes-dir", type=Path, default=Path("outputs/bench_language"))
+    parser.add_argument("--bench", type=Path, default=Path("outputs/bench_remove"))
+    parser.add_argument("--scenes", nargs="+", default=["removal_1", "removal_2"])
+    parser.add_argument(
+        "--image-scale", type=float, default=0.5, help="virtual-view resolution (default 0.5)"
+    )
+    args = parser.parse_args()
+    print("command: python " + " ".join(shlex.quote(a) for a in sys.argv))
+    results = json.loads((args.bench / "results.json").read_text())
+    rows = []
+    for name in args.scenes:
+        r = results[name]
+        box, truth = OrientedBox.from_dict(r["query_box"]), OrientedBox.from_dict(r["truth_box"])
+        pre_dir, oracle_dir = args.scenes_dir / f"{name}_pre", args.bench / name / "oracle"
+        cfg = RemoveConfig()
+        cfg.views.image_scale = args.image_scale
+        replay = ReplayInpainter(oracle_composites(pre_dir, oracle_dir, box, cfg))
+        out = args.bench / name / f"neo_perfect_inpainting_{args.image_scale:g}"
+        remove_object(pre_dir, out, [box], cfg, r["object"], overwrite=True, inpainter=replay)
+        post = load_scene_data(args.data / name / "post")
+        m = evaluate(load_scene(out), post, "test", out_boxes=[truth])
+        rows.append((name, r["neo"]["out"]["psnr"], m["out"]["psnr"], r["oracle"]["out"]["psnr"]))
+        print(
+            f"{name}: Out-PSNR NEO {rows[-1][1]:.2f}, perfect inpainting {rows[-1][2]:.2f}, oracle {rows[-1][3]:.2f}",
+            flush=True,
+        )
+    print("| scene | NEO (FSR) | NEO with perfect 2-D inpainting | oracle |\n|---|---|---|---|")
+    for name, neo, ceiling, oracle in rows:
+        print(f"| {name} | {neo:.2f} | {ceiling:.2f} | {oracle:.2f} |")
+
+
+if __name__ == "__main__":
+    main()

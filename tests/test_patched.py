@@ -1,0 +1,138 @@
+"""Local edits as patches: outside its region a patched field is its base, exactly."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from neoedit.fields.hashgrid import HashGridConfig
+from neoedit.fields.patched import PatchedField, edit_region, inside_box
+from neoedit.fields.radiance import RadianceField, RadianceFieldConfig
+from neoedit.geometry import OrientedBox
+from neoedit.scene import load_scene, save_scene
+
+AABB = torch.tensor([[-0.5, -0.5, -0.1], [0.5, 0.5, 0.4]])
+CFG = RadianceFieldConfig(
+    hashgrid=HashGridConfig(n_levels=4, log2_hashmap_size=10, max_resolution=64)
+)
+
+
+def perturbed(field: RadianceField, seed: int) -> RadianceField:
+    import copy
+
+    other = copy.deepcopy(field)
+    gen = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        for p in other.parameters():
+            p.add_(torch.randn(p.shape, generator=gen) * 0.5)
+    return other
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    cx=st.floats(-0.3, 0.3),
+    cy=st.floats(-0.3, 0.3),
+    size=st.floats(0.02, 0.3),
+    yaw=st.floats(-180, 180),
+    seed=st.integers(0, 1000),
+)
+def test_patched_field_is_base_outside_and_patch_inside(cx, cy, size, yaw, seed):
+    base = RadianceField(CFG, AABB, seed=1)
+    box = OrientedBox((cx, cy, 0.1), (size, 0.7 * size, size), yaw)
+    field = PatchedField(base)
+    patch = field.add_patch([box])
+    with torch.no_grad():
+        patch.load_state_dict(perturbed(base, seed).state_dict())
+    gen = torch.Generator().manual_seed(seed)
+    pts = AABB[0] + torch.rand(4000, 3, generator=gen) * (AABB[1] - AABB[0])
+    dirs = torch.nn.functional.normalize(torch.randn(4000, 3, generator=gen), dim=-1)
+    inside = torch.as_tensor(box.contains(pts.numpy()))
+    assert torch.equal(inside_box(pts, box), inside)  # torch and numpy containment agree
+    with torch.no_grad():
+        sigma, rgb = field(pts, dirs)
+        sb, cb = base(pts, dirs)
+        sp, cp = patch(pts, dirs)
+        dens = field.density(pts)
+    assert torch.allclose(sigma[~inside], sb[~inside], atol=1e-5, rtol=1e-5)
+    assert torch.allclose(rgb[~inside], cb[~inside], atol=1e-6)
+    assert torch.allclose(sigma[inside], sp[inside], atol=1e-5, rtol=1e-5)
+    assert torch.allclose(rgb[inside], cp[inside], atol=1e-6)
+    assert torch.allclose(dens, sigma, atol=1e-5, rtol=1e-5)
+
+
+def test_later_patches_win_and_start_from_what_renders_their_region():
+    base = RadianceField(CFG, AABB, seed=1)
+    field = PatchedField(base)
+    first = field.add_patch([OrientedBox((0.0, 0.0, 0.1), (0.2, 0.2, 0.2), 0.0)])
+    with torch.no_grad():
+        first.load_state_dict(perturbed(base, 3).state_dict())
+    # overlapping the first patch: starts as a copy of it, not of the base
+    second = field.add_patch([OrientedBox((0.05, 0.0, 0.1), (0.1, 0.1, 0.1), 30.0)])
+    assert all(
+        torch.equal(a, b)
+        for a, b in zip(first.state_dict().values(), second.state_dict().values(), strict=True)
+    )
+    with torch.no_grad():
+        second.load_state_dict(perturbed(base, 4).state_dict())
+    pts = torch.tensor([[0.05, 0.0, 0.1], [-0.08, -0.08, 0.1], [0.4, 0.4, 0.1]])
+    assert field.owner(pts).tolist() == [1, 0, -1]
+    with torch.no_grad():
+        got = field.density(pts)
+        assert torch.allclose(got[0], second.density(pts[:1])[0])
+        assert torch.allclose(got[1], first.density(pts[1:2])[0])
+        assert torch.allclose(got[2], base.density(pts[2:])[0])
+    # a patch elsewhere starts from the base
+    third = field.add_patch([OrientedBox((0.35, -0.35, 0.1), (0.05, 0.05, 0.05), 0.0)])
+    assert torch.equal(third.encoding.table, base.encoding.table)
+
+
+def test_gradients_reach_only_the_patch_through_its_region():
+    base = RadianceField(CFG, AABB, seed=1).requires_grad_(False)
+    field = PatchedField(base)
+    box = OrientedBox((0.0, 0.0, 0.1), (0.2, 0.2, 0.2), 0.0)
+    patch = field.add_patch([box]).requires_grad_(True)
+    outside = torch.tensor([[0.3, 0.3, 0.1], [-0.3, 0.2, 0.0]])
+    assert not field.density(outside).requires_grad  # nothing trainable answers out there
+    field.density(torch.tensor([[0.01, 0.02, 0.1]])).sum().backward()
+    assert patch.encoding.table.grad is not None and patch.encoding.table.grad.abs().sum() > 0
+
+
+def test_edit_region_reaches_under_the_box():
+    box = OrientedBox((0.1, 0.0, 0.05), (0.1, 0.05, 0.1), 20.0)
+    region = edit_region(box, 0.03)
+    assert region.contains(box.corners(), margin_m=1e-9).all()
+    assert region.contains(np.array([[0.1, 0.0, -0.025]]))[0]
+    assert not region.contains(np.array([[0.1, 0.0, -0.035]]))[0]
+
+
+def test_patched_scene_round_trips(trained: Path, tmp_path: Path):
+    scene = load_scene(trained)
+    region = [OrientedBox((0.0, 0.0, 0.05), (0.1, 0.1, 0.1), 10.0)]
+    patch = scene.patched().add_patch(region)
+    with torch.no_grad():
+        patch.load_state_dict(perturbed(patch, 7).state_dict())
+    scene.meta.patches.append({"region": [b.to_dict() for b in region], "version": "x"})
+    save_scene(tmp_path / "v", scene)
+    again = load_scene(tmp_path / "v")
+    assert isinstance(again.field, PatchedField) and len(again.field.patches) == 1
+    pts = torch.rand(500, 3) * 0.2 - torch.tensor([0.1, 0.1, 0.0])
+    with torch.no_grad():
+        assert torch.allclose(again.field.density(pts), scene.field.density(pts))
+
+    # the scan cannot train an edited version further (its patches belong to their edits)
+    import pytest
+
+    from neoedit.errors import NeoError
+    from neoedit.training.trainer import TrainConfig, train
+
+    with pytest.raises(NeoError, match="edited version"):
+        train(
+            Path(scene.meta.data_path),
+            tmp_path / "v",
+            TrainConfig(max_steps=scene.meta.step + 5, eval_every=0),
+            resume=True,
+        )
