@@ -72,6 +72,12 @@ def main() -> None:
     parser.add_argument(
         "--image-scale", type=float, default=0.5, help="virtual-view resolution (default 0.5)"
     )
+    parser.add_argument(
+        "--inpaint-all",
+        action="store_true",
+        help="fill all of the box silhouette, seen pixels included (no pre-scan shadow left)",
+    )
+    parser.add_argument("--steps", type=int, default=120, help="patch training steps")
     args = parser.parse_args()
     print("command: python " + " ".join(shlex.quote(a) for a in sys.argv))
     results = json.loads((args.bench / "results.json").read_text())
@@ -82,8 +88,14 @@ def main() -> None:
         pre_dir, oracle_dir = args.scenes_dir / f"{name}_pre", args.bench / name / "oracle"
         cfg = RemoveConfig()
         cfg.views.image_scale = args.image_scale
+        cfg.refine.inpaint_unseen_only = not args.inpaint_all
+        cfg.refine.steps = args.steps
         replay = ReplayInpainter(oracle_composites(pre_dir, oracle_dir, box, cfg))
-        out = args.bench / name / f"neo_perfect_inpainting_{args.image_scale:g}"
+        out = (
+            args.bench
+            / name
+            / f"neo_perfect_inpainting_{args.image_scale:g}{'_all' if args.inpaint_all else ''}_{args.steps}"
+        )
         remove_object(pre_dir, out, [box], cfg, r["object"], overwrite=True, inpainter=replay)
         post = load_scene_data(args.data / name / "post")
         m = evaluate(load_scene(out), post, "test", out_boxes=[truth])
