@@ -22,14 +22,9 @@ import numpy as np
 
 from neoedit.data import load_scene_data
 from neoedit.edit.inpaint import tile_2x2
-from neoedit.edit.masks import grown_box_clear_of, project_box_mask
+from neoedit.edit.masks import project_box_mask
 from neoedit.edit.refine import crop_window, render_crops
-from neoedit.edit.remove import (
-    RemoveConfig,
-    neighbour_points,
-    remove_object,
-    seated_on_support,
-)
+from neoedit.edit.remove import RemoveConfig, remove_object, working_boxes
 from neoedit.edit.views import virtual_cameras
 from neoedit.eval.evaluate import evaluate
 from neoedit.geometry import OrientedBox
@@ -51,8 +46,7 @@ class ReplayInpainter:
 
 def oracle_composites(pre_dir: Path, oracle_dir: Path, box: OrientedBox, cfg: RemoveConfig):
     parent, oracle = load_scene(pre_dir), load_scene(oracle_dir)
-    seated = seated_on_support(parent, box)  # the working box exactly as remove_object makes it
-    work = grown_box_clear_of(seated, cfg.margin_m, neighbour_points(parent, seated, cfg))
+    (work,) = working_boxes(parent, [box], cfg)
     cameras, _, split = scene_cameras(Path(parent.meta.data_path))
     virtual = virtual_cameras(box, cameras.subset(split["train"]), cfg.views)
     masks = [project_box_mask(virtual, i, work) for i in range(len(virtual))]

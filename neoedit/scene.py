@@ -108,7 +108,7 @@ class Scene:
 
     def patched(self) -> PatchedField:
         """The field as a :class:`PatchedField` (wrapping it on first use) so an edit can
-        add a patch; ``meta.patches`` must be kept in step by the caller."""
+        add a patch (``meta.patches`` follows the field when the scene is saved)."""
         if not isinstance(self.field, PatchedField):
             self.field = PatchedField(self.field)
         return self.field
@@ -152,6 +152,15 @@ def save_scene(path: Path, scene: Scene, optimizer: torch.optim.Optimizer | None
     """Write (or atomically replace) a scene directory."""
     with atomic_directory(Path(path), overwrite=True) as tmp:
         tensors = _field_tensors(scene.field)
+        if isinstance(scene.field, PatchedField):
+            known = scene.meta.patches  # patches added since loading belong to this version
+            scene.meta.patches = [
+                {
+                    "region": [b.to_dict() for b in region],
+                    "version": known[i]["version"] if i < len(known) else scene.meta.version_id,
+                }
+                for i, region in enumerate(scene.field.regions)
+            ]
         tensors["grid.density"] = scene.grid.density.detach().cpu().contiguous()
         tensors["grid.n_updates"] = scene.grid.n_updates.detach().cpu().reshape(1)
         save_file(tensors, str(tmp / "field.safetensors"))

@@ -154,14 +154,13 @@ def box_points(
 
 def unseen_masks(
     scene: Scene,
-    vcams: CameraTensors,
+    virtual: Cameras,
     window: tuple[slice, slice],
     pix: torch.Tensor,
     depth_z: torch.Tensor,
     masks: list[np.ndarray],
     scan_cameras: Cameras,
     cfg: RefineConfig,
-    fx_px: np.ndarray,
     boxes: list[OrientedBox],
 ) -> list[np.ndarray]:
     """The pixels of M_v to inpaint: those whose preview surface point (from ``depth_z``
@@ -169,6 +168,7 @@ def unseen_masks(
     the field shows there is the object's contact: its shadow, colour bled into the table);
     per view (h,w) bool, grown by ``cfg.hole_margin_m`` (within M_v). Kept: what was seen
     above the support (a neighbour inside or behind the box) or beyond the footprint."""
+    vcams = CameraTensors(virtual, depth_z.device)
     rays = vcams.rays(pix[:, 0], pix[:, 1] + window[0].start, pix[:, 2] + window[1].start)
     dist = depth_z[pix[:, 0], pix[:, 1], pix[:, 2]] / rays.z_scale
     points = rays.origins + rays.directions * dist[:, None]
@@ -195,7 +195,7 @@ def unseen_masks(
             out.append(m)
             continue
         dist_m = float(depth_z[v][torch.as_tensor(m, device=depth_z.device)].median())
-        radius_px = int(np.ceil(float(fx_px[v]) * cfg.hole_margin_m / max(dist_m, 1e-3)))
+        radius_px = int(np.ceil(float(virtual.fx[v]) * cfg.hole_margin_m / max(dist_m, 1e-3)))
         kernel = cv2.getStructuringElement(
             cv2.MORPH_ELLIPSE, (2 * radius_px + 1, 2 * radius_px + 1)
         )
@@ -225,9 +225,6 @@ def refine_removal(
     scene.field.requires_grad_(False)
     region = [edit_region(b, cfg.below_m) for b in boxes]
     patch = scene.patched().add_patch(region).requires_grad_(True)
-    scene.meta.patches.append(
-        {"region": [b.to_dict() for b in region], "version": scene.meta.version_id}
-    )
     enc = list(patch.encoding.parameters())
     mlp = [p for n, p in patch.named_parameters() if not n.startswith("encoding.")]
     optimizer = torch.optim.Adam(
@@ -306,16 +303,7 @@ def refine_removal(
                 if cfg.inpaint_unseen_only and scan_cameras is not None and len(pix):
                     t = time.perf_counter()
                     holes = unseen_masks(
-                        scene,
-                        vcams,
-                        window,
-                        pix,
-                        depth,
-                        masks,
-                        scan_cameras,
-                        cfg,
-                        virtual.fx,
-                        boxes,
+                        scene, virtual, window, pix, depth, masks, scan_cameras, cfg, boxes
                     )
                     timings["visibility_s"] += time.perf_counter() - t
             t = time.perf_counter()

@@ -86,8 +86,7 @@ def remove_object(
     check_output(scene_dir, out, overwrite)
     t0 = time.perf_counter()
     parent = load_scene(scene_dir, device)
-    seated = [seated_on_support(parent, b) for b in boxes]
-    work = [grown_box_clear_of(b, cfg.margin_m, neighbour_points(parent, b, cfg)) for b in seated]
+    work = working_boxes(parent, boxes, cfg)
     record = {
         "type": "remove",
         "prompt": prompt,
@@ -139,6 +138,13 @@ def remove_object(
     save_scene(Path(out), child)
     _write_report(report, parent, child, strips)
     return child
+
+
+def working_boxes(scene: Scene, boxes: list[OrientedBox], cfg: RemoveConfig) -> list[OrientedBox]:
+    """The boxes an edit cuts, inpaints and regularises: each seated on the table and grown
+    by ``cfg.margin_m``, short of neighbouring objects."""
+    seated = [seated_on_support(scene, b) for b in boxes]
+    return [grown_box_clear_of(b, cfg.margin_m, neighbour_points(scene, b, cfg)) for b in seated]
 
 
 def seated_on_support(scene: Scene, box: OrientedBox, ring_m: float = 0.03) -> OrientedBox:

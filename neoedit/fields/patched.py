@@ -33,27 +33,15 @@ class PatchedField(nn.Module):
     """Base field + patches; same interface as :class:`RadianceField` (``aabb``,
     ``density``, ``forward``)."""
 
-    def __init__(
-        self,
-        base: RadianceField,
-        regions: list[list[OrientedBox]] | None = None,
-        patches: list[RadianceField] | None = None,
-    ):
+    def __init__(self, base: RadianceField):
         super().__init__()
-        regions, patches = list(regions or []), list(patches or [])
-        if len(regions) != len(patches):
-            raise ValueError(f"{len(regions)} regions for {len(patches)} patches")
         self.base = base
-        self.regions = regions
-        self.patches = nn.ModuleList(patches)
+        self.regions: list[list[OrientedBox]] = []
+        self.patches = nn.ModuleList()
 
     @property
     def aabb(self) -> torch.Tensor:
         return self.base.aabb
-
-    @property
-    def cfg(self):
-        return self.base.cfg
 
     def add_patch(self, region: list[OrientedBox]) -> RadianceField:
         """Append a patch owning the boxes ``region``, initialised from the field that renders
