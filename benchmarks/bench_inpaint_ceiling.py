@@ -28,7 +28,6 @@ from neoedit.edit.remove import RemoveConfig, remove_object, working_boxes
 from neoedit.edit.views import virtual_cameras
 from neoedit.eval.evaluate import evaluate
 from neoedit.geometry import OrientedBox
-from neoedit.rendering.export import scene_cameras
 from neoedit.scene import load_scene
 
 
@@ -47,7 +46,7 @@ class ReplayInpainter:
 def oracle_composites(pre_dir: Path, oracle_dir: Path, box: OrientedBox, cfg: RemoveConfig):
     parent, oracle = load_scene(pre_dir), load_scene(oracle_dir)
     (work,) = working_boxes(parent, [box], cfg)
-    cameras, _, split = scene_cameras(Path(parent.meta.data_path))
+    cameras, _, split = parent.scan_cameras()
     virtual = virtual_cameras(box, cameras.subset(split["train"]), cfg.views)
     masks = [project_box_mask(virtual, i, work) for i in range(len(virtual))]
     window = crop_window(masks, cfg.refine.crop_margin_px)

@@ -22,12 +22,15 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 from pydantic import TypeAdapter, ValidationError
 from safetensors.torch import load_file, save_file
 
 from neoedit.cameras.rays import CameraTensors
+from neoedit.data.scan import ScanCameras, dataset_cameras, scan_from_record
 from neoedit.errors import NeoError
+from neoedit.fields.composed import moved_field
 from neoedit.fields.patched import PatchedField
 from neoedit.fields.radiance import Field, RadianceField, RadianceFieldConfig
 from neoedit.fields.suppressed import with_removals
@@ -37,6 +40,7 @@ from neoedit.language.text import TextEncoderSpec
 from neoedit.rendering.occupancy import OccupancyGrid, OccupancyGridConfig
 from neoedit.rendering.renderer import RenderConfig, render_image
 from neoedit.utils.io import atomic_directory, atomic_write_json
+from neoedit.utils.validate import check_finite, check_language, check_scene_meta, check_weights
 
 FORMAT = "neoedit.scene/1"
 
@@ -74,6 +78,13 @@ class SceneMeta:
     history: list[dict[str, Any]] = dataclasses.field(default_factory=list)
     """Training log: step, seconds, train/eval PSNR."""
     language: LanguageMeta | None = None
+    scan: dict[str, Any] | None = None
+    """The scan's cameras (poses, intrinsics, sizes, file names, splits): a version renders
+    and edits without its dataset (scenes written before this field read ``data_path``)."""
+    moves: list[dict[str, Any]] = dataclasses.field(default_factory=list)
+    """Render-time moves of a preview version (``neo move --preview``): per move the source
+    and target boxes and the 4x4 world ``transform``; the source is emptied and the target
+    shows the field under the inverse motion, with no training."""
     cut_boxes: list[dict[str, Any]] = dataclasses.field(default_factory=list)
     """Boxes cut out of every ray at render time (removal by resampling, no training)."""
     suppress_boxes: list[dict[str, Any]] = dataclasses.field(default_factory=list)
@@ -116,11 +127,32 @@ class Scene:
     def renderable(self) -> tuple[Field, list[OrientedBox]]:
         """The field to render and the boxes to cut out of every ray, with this version's
         render-time removals applied (suppression wraps the field; resampling cuts rays)."""
+        field_: Field = self.field
+        for move in self.meta.moves:  # preview moves compose over the field, in order
+            field_ = moved_field(
+                field_,
+                field_,
+                [OrientedBox.from_dict(move["source"])],
+                [OrientedBox.from_dict(move["target"])],
+                np.asarray(move["transform"], dtype=np.float64),
+            )
         return with_removals(
-            self.field,
+            field_,
             cut=[OrientedBox.from_dict(b) for b in self.meta.cut_boxes],
             suppress=[OrientedBox.from_dict(b) for b in self.meta.suppress_boxes],
         )
+
+    def scan_cameras(self) -> ScanCameras:
+        """(cameras, file paths, splits) of the scan this version descends from."""
+        if self.meta.scan is not None:
+            return scan_from_record(self.meta.scan)
+        try:
+            return dataset_cameras(Path(self.meta.data_path))
+        except (NeoError, OSError) as e:
+            raise NeoError(
+                f"this scene stores no cameras and its dataset {self.meta.data_path} cannot be "
+                f"read ({e}); re-train it with this version of neoedit"
+            ) from None
 
     def render_image(
         self, cameras: CameraTensors, index: int, height: int, width: int
@@ -150,8 +182,9 @@ class Scene:
 
 def save_scene(path: Path, scene: Scene, optimizer: torch.optim.Optimizer | None = None) -> None:
     """Write (or atomically replace) a scene directory."""
-    with atomic_directory(Path(path), overwrite=True) as tmp:
+    with atomic_directory(Path(path), overwrite=True, kind="scene") as tmp:
         tensors = _field_tensors(scene.field)
+        check_finite(tensors, Path(path))  # a diverged field never replaces a good version
         if isinstance(scene.field, PatchedField):
             known = scene.meta.patches  # patches added since loading belong to this version
             scene.meta.patches = [
@@ -187,7 +220,7 @@ def load_scene(path: Path, device: torch.device | str = "cpu") -> Scene:
         raise NeoError(f"{path} is not a neoedit scene (no scene.json)")
     try:
         raw = json.loads(meta_path.read_text())
-    except json.JSONDecodeError as e:
+    except (ValueError, RecursionError, OSError) as e:
         raise NeoError(f"{meta_path} is not valid JSON: {e}") from None
     if not isinstance(raw, dict) or raw.get("format") != FORMAT:
         raise NeoError(
@@ -199,6 +232,7 @@ def load_scene(path: Path, device: torch.device | str = "cpu") -> Scene:
         raise NeoError(
             f"{meta_path}: malformed metadata: {e.errors()[0]['loc']}: {e.errors()[0]['msg']}"
         ) from None
+    check_scene_meta(meta, meta_path)
     weights = path / "field.safetensors"
     if not weights.is_file():
         raise NeoError(f"{path}: missing field.safetensors")
@@ -206,6 +240,7 @@ def load_scene(path: Path, device: torch.device | str = "cpu") -> Scene:
         tensors = load_file(str(weights))
     except Exception as e:  # safetensors raises its own error types for corrupt files
         raise NeoError(f"{weights}: cannot read weights: {e}") from None
+    check_weights(meta, tensors, weights)
     scene = Scene.create(meta, device="cpu")
     try:
         scene.field.load_state_dict(_state(tensors, "field."))
@@ -220,7 +255,9 @@ def load_scene(path: Path, device: torch.device | str = "cpu") -> Scene:
     except (RuntimeError, KeyError) as e:
         raise NeoError(f"{weights}: weights do not match the scene config: {e}") from None
     if meta.language is not None:
+        check_language(meta, path, None)
         _load_language(path, scene, meta.language)
+        check_language(meta, path, scene)
         scene.language.to(device)  # type: ignore[union-attr]
         scene.surface_points_m = scene.surface_points_m.to(device)  # type: ignore[union-attr]
     scene.field.to(device)

@@ -101,6 +101,35 @@ class Cameras:
             self.height[idx],
         )
 
+    def scaled(self, scale: float) -> Cameras:
+        """The same cameras with images resized by ``scale`` (intrinsics scaled)."""
+        w = np.maximum((self.width * scale).round().astype(np.int64), 1)
+        h = np.maximum((self.height * scale).round().astype(np.int64), 1)
+        sx, sy = w / self.width, h / self.height
+        return Cameras(
+            self.camera_to_world, self.fx * sx, self.fy * sy, self.cx * sx, self.cy * sy, w, h
+        )
+
+    @staticmethod
+    def concat(sets: list[Cameras]) -> Cameras:
+        """One camera set from several, in order."""
+        if len(sets) == 1:
+            return sets[0]
+        fields = ("camera_to_world", "fx", "fy", "cx", "cy", "width", "height")
+        return Cameras(*(np.concatenate([getattr(c, f) for c in sets]) for f in fields))
+
+    def to_record(self) -> dict[str, list]:
+        """JSON-able record (lists) of the cameras; :meth:`from_record` reads it back."""
+        return {
+            "camera_to_world": self.camera_to_world.round(9).tolist(),
+            **{f: getattr(self, f).tolist() for f in ("fx", "fy", "cx", "cy", "width", "height")},
+        }
+
+    @classmethod
+    def from_record(cls, record: dict[str, list]) -> Cameras:
+        fields = ("camera_to_world", "fx", "fy", "cx", "cy", "width", "height")
+        return cls(*(np.asarray(record[f]) for f in fields))
+
     def pixel_directions_camera(self, i: int) -> np.ndarray:
         """(H, W, 3) camera-frame ray directions through pixel centres, with z = -1."""
         w, h = int(self.width[i]), int(self.height[i])

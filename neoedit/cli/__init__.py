@@ -10,11 +10,12 @@ import tyro
 from rich.console import Console
 
 from neoedit.cli.data import InfoCommand
-from neoedit.cli.edit import RemoveCommand
+from neoedit.cli.edit import MoveCommand, RemoveCommand
 from neoedit.cli.field import EvalCommand, RenderCommand, TrainCommand
 from neoedit.cli.language import QueryCommand
 from neoedit.cli.sim import SimBenchmarkCommand, SimSceneCommand
 from neoedit.errors import NeoError
+from neoedit.utils.validate import check_device, user_message
 
 SimCommands = Annotated[
     Union[  # noqa: UP007 (tyro reads the Union)
@@ -34,6 +35,7 @@ Commands = Union[  # noqa: UP007
     Annotated[EvalCommand, tyro.conf.subcommand("eval")],
     Annotated[QueryCommand, tyro.conf.subcommand("query")],
     Annotated[RemoveCommand, tyro.conf.subcommand("remove")],
+    Annotated[MoveCommand, tyro.conf.subcommand("move")],
 ]
 
 
@@ -42,9 +44,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     command = tyro.cli(Commands, prog="neo", args=argv)
     err = Console(stderr=True)
     try:
+        check_device(getattr(command, "device", "auto"))
         command.run()
     except NeoError as e:
-        err.print(f"[bold red]error:[/] {e}", highlight=False)
+        err.print(f"[bold red]error:[/] {user_message(e)}", highlight=False)
+        return 2
+    except OSError as e:  # a file that cannot be read or written (permissions, disk full, ...)
+        err.print(f"[bold red]error:[/] {user_message(e)}", highlight=False)
         return 2
     except SystemExit as e:  # a verb's own non-zero status (e.g. query: no match)
         return int(e.code or 0)

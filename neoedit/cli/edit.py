@@ -6,13 +6,18 @@ import dataclasses
 import json
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
+import numpy as np
 import tyro
 from rich.console import Console
 
+from neoedit.edit.relocate import MoveConfig
 from neoedit.edit.remove import RemoveConfig
 from neoedit.errors import NeoError
+from neoedit.geometry import OrientedBox
 from neoedit.language.localize import QueryConfig
+from neoedit.scene import Scene
 
 console = Console()
 
@@ -38,41 +43,148 @@ class RemoveCommand:
     device: str = "auto"
 
     def run(self) -> None:
-        from neoedit.edit.remove import remove_object
-        from neoedit.geometry.box import load_boxes
-        from neoedit.language.localize import query_scene
-        from neoedit.language.relevancy import split_prompts
-        from neoedit.language.text import load_text_encoder
-        from neoedit.scene import load_scene
-        from neoedit.training.trainer import resolve_device
+        from neoedit.edit.history import check_output
+        from neoedit.edit.remove import remove, write_report
+        from neoedit.scene import load_scene, save_scene
+        from neoedit.utils.device import resolve_device
 
-        device = resolve_device(self.device)
         if (self.prompt is None) == (self.box is None):
             raise NeoError('give either a prompt ("red mug") or --box BOX.json, not both')
-        if self.box is not None:
-            boxes = load_boxes(self.box)
-            prompt = None
-        else:
-            prompts = split_prompts(self.prompt or "")
-            if not prompts:
-                raise NeoError('empty prompt: say which object to remove, e.g. "red mug"')
-            scene = load_scene(self.scene, device)
-            if scene.meta.language is None:
-                raise NeoError(
-                    f"{self.scene} has no language field: pass --box instead of a prompt"
-                )
-            text = load_text_encoder(scene.meta.language.text)
-            boxes = []
-            for p in prompts:
-                res = query_scene(scene, p, text, self.query)
-                console.print(f"{p!r}: box {json.dumps(res.box.to_dict())} (score {res.score:.3f})")
-                boxes.append(res.box)
-            prompt = self.prompt
-        child = remove_object(
-            self.scene, self.out, boxes, self.edit, prompt, device, self.overwrite
-        )
+        check_output(self.scene, self.out, self.overwrite)
+        scene = load_scene(self.scene, resolve_device(self.device))
+        boxes = find_boxes(scene, self.prompt, self.box, self.query, "remove")
+        child, strips = remove(scene, boxes, self.edit, self.prompt)
+        save_scene(self.out, child)
+        write_report(self.out / "report", scene, child, strips)
         rec = child.meta.edits[-1]
         console.print(
             f"wrote {self.out} (version {child.meta.version_id}, parent {child.meta.parent}) in "
             f"{rec['seconds']:.1f} s; pictures in {self.out / 'report'}"
         )
+
+
+def find_boxes(
+    scene: Scene, prompt: str | None, box: Path | None, query: QueryConfig, verb: str
+) -> list[OrientedBox]:
+    """The boxes an edit works on: from a box file, or one per prompt (``;`` separates
+    several) found by the scene's language field."""
+    from neoedit.geometry.box import load_boxes
+    from neoedit.language.localize import query_scene
+    from neoedit.language.relevancy import split_prompts
+    from neoedit.language.text import load_text_encoder
+    from neoedit.utils.validate import check_edit_boxes
+
+    if box is not None:
+        return check_edit_boxes(scene, load_boxes(box))  # inside the scene, not empty
+    prompts = split_prompts(prompt or "")
+    if not prompts:
+        raise NeoError(f'empty prompt: say which object to {verb}, e.g. "red mug"')
+    if scene.meta.language is None:
+        raise NeoError("this scene has no language field: pass --box instead of a prompt")
+    text = load_text_encoder(scene.meta.language.text)
+    boxes = []
+    for p in prompts:
+        res = query_scene(scene, p, text, query)
+        console.print(f"{p!r}: box {json.dumps(res.box.to_dict())} (score {res.score:.3f})")
+        boxes.append(res.box)
+    return boxes
+
+
+@dataclass
+class MoveCommand:
+    """Move an object named by a prompt (or given as a box) to a new pose; writes a new scene
+    version (the input is never modified) with before/after renders under OUT/report/.
+    The motion is --translate X Y Z [--yaw DEG] (world metres; yaw about the vertical axis
+    through the box centre) or --transform T.json (a 4x4 world transform, x' = T x)."""
+
+    scene: tyro.conf.Positional[Path]
+    """Scene directory to edit."""
+    out: Path
+    """New scene version to write."""
+    prompt: tyro.conf.Positional[str | None] = None
+    """What to move, e.g. "red mug" (needs a language field); or use --box."""
+    box: Path | None = None
+    """JSON box file ({"center", "size", "yaw_deg"}) instead of a prompt."""
+    translate: tuple[float, float, float] | None = None
+    """Translation in metres, world frame."""
+    yaw: float = 0.0
+    """Rotation in degrees about the vertical axis through the box centre (with --translate,
+    or alone)."""
+    transform: Path | None = None
+    """JSON file with a 4x4 world-frame rigid transform (list of 4 rows), or an object with a
+    "transform_world" key (NEO-Sim's scene.json action format)."""
+    method: Literal["neo", "seal3d"] = "neo"
+    """'neo' (the paper: region-composed teachers, inpainted source) or 'seal3d' (the
+    single-teacher baseline)."""
+    preview: bool = False
+    """Instant preview: record the move and render it by composition, no training."""
+    edit: MoveConfig = dataclasses.field(default_factory=MoveConfig)
+    """Everything else of the edit (--edit.distill.render-steps, --edit.remove.inpainter, ...)."""
+    query: QueryConfig = dataclasses.field(default_factory=QueryConfig)
+    overwrite: bool = False
+    """Replace OUT if it exists (never the input scene)."""
+    device: str = "auto"
+
+    def run(self) -> None:
+        from neoedit.edit.history import check_output
+        from neoedit.edit.relocate import Motion, move
+        from neoedit.edit.remove import write_report
+        from neoedit.scene import load_scene, save_scene
+        from neoedit.utils.device import resolve_device
+
+        if (self.prompt is None) == (self.box is None):
+            raise NeoError('give either a prompt ("red mug") or --box BOX.json, not both')
+        transform = self.motion()
+        check_output(self.scene, self.out, self.overwrite)
+        scene = load_scene(self.scene, resolve_device(self.device))
+        boxes = find_boxes(scene, self.prompt, self.box, self.query, "move")
+        motions = [Motion(b, motion_for(b, transform)) for b in boxes]
+        cfg = dataclasses.replace(self.edit, method=self.method, preview=self.preview)
+        child = move(scene, motions, cfg, self.prompt)
+        save_scene(self.out, child)
+        write_report(self.out / "report", scene, child, [])
+        rec = child.meta.edits[-1]
+        console.print(
+            f"wrote {self.out} ({rec['method']}, version {child.meta.version_id}, parent "
+            f"{child.meta.parent}) in {rec['seconds']:.1f} s; pictures in {self.out / 'report'}"
+        )
+
+    def motion(self) -> np.ndarray | tuple[np.ndarray, float]:
+        """A 4x4 transform (--transform) or (translation, yaw) to apply about each box."""
+        if self.transform is not None:
+            if self.translate is not None or self.yaw != 0.0:
+                raise NeoError("give either --translate/--yaw or --transform, not both")
+            return read_transform(self.transform)
+        if self.translate is None and self.yaw == 0.0:
+            raise NeoError("say where to: --translate X Y Z [--yaw DEG] or --transform T.json")
+        t = np.asarray(self.translate if self.translate is not None else (0.0, 0.0, 0.0))
+        if not np.isfinite(t).all() or not np.isfinite(self.yaw):
+            raise NeoError("--translate and --yaw must be finite numbers")
+        return t, float(self.yaw)
+
+
+def motion_for(box: OrientedBox, motion: np.ndarray | tuple[np.ndarray, float]) -> np.ndarray:
+    from neoedit.geometry import motion_about
+
+    if isinstance(motion, tuple):
+        return motion_about(np.asarray(box.center_m), motion[0], motion[1])
+    return motion
+
+
+def read_transform(path: Path) -> np.ndarray:
+    """A 4x4 matrix from a JSON file: a list of 4 rows, or {"transform_world": rows}."""
+    try:
+        raw = json.loads(Path(path).read_text())
+    except FileNotFoundError:
+        raise NeoError(f"transform file not found: {path}") from None
+    except (OSError, json.JSONDecodeError) as e:
+        raise NeoError(f"{path}: cannot read a transform: {e}") from None
+    if isinstance(raw, dict):
+        raw = raw.get("transform_world", raw.get("transform"))
+    try:
+        t = np.asarray(raw, dtype=np.float64)
+    except (TypeError, ValueError):
+        t = np.zeros(0)
+    if t.shape != (4, 4):
+        raise NeoError(f"{path}: expected a 4x4 matrix (a JSON list of 4 rows of 4 numbers)")
+    return t

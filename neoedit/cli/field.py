@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 from dataclasses import dataclass
@@ -11,6 +12,7 @@ from typing import Annotated, Literal
 import tyro
 from rich.console import Console
 
+from neoedit.errors import NeoError
 from neoedit.fields.radiance import RadianceFieldConfig
 from neoedit.language.training import LanguageTrainConfig
 from neoedit.rendering.occupancy import OccupancyGridConfig
@@ -47,6 +49,7 @@ class TrainCommand:
     def run(self) -> None:
         from neoedit.training.trainer import train
 
+        self.check()
         scene = train(
             self.data,
             self.out,
@@ -70,6 +73,32 @@ class TrainCommand:
                 f"{lang.seconds:.1f} s, cosine loss {lang.loss:.4f}"
             )
 
+    def check(self) -> None:
+        """Everything that can be refused before the data is read and training starts."""
+        from neoedit.utils.io import check_writable_output
+        from neoedit.utils.validate import check_train_options
+
+        language = None if self.skip_language else self.language
+        check_train_options(self.train, self.field, self.grid, self.render, language, self.resume)
+        check_writable_output(
+            self.out, [self.data], "scene", self.resume, "pass --resume to continue it"
+        )
+        if self.resume and language is None:
+            done = _steps_done(self.out)
+            if done is not None and self.train.max_steps <= done:
+                raise NeoError(
+                    f"{self.out} already has {done} steps and --skip-language is set: nothing "
+                    "to do (raise --max-steps)"
+                )
+
+
+def _steps_done(scene_dir: Path) -> int | None:
+    try:
+        step = json.loads((scene_dir / "scene.json").read_text()).get("step")
+    except (OSError, ValueError, AttributeError):
+        return None
+    return step if isinstance(step, int) else None
+
 
 @dataclass
 class RenderCommand:
@@ -88,12 +117,21 @@ class RenderCommand:
     video: bool = False
     """Also write video.gif (and video.mp4 if imageio-ffmpeg is installed)."""
     device: str = "auto"
+    overwrite: bool = False
+    """Replace OUT if it holds an earlier render (never anything else)."""
 
     def run(self) -> None:
         from neoedit.rendering.export import render_command
 
         n = render_command(
-            self.scene, self.out, self.views, self.cameras, self.n_frames, self.video, self.device
+            self.scene,
+            self.out,
+            self.views,
+            self.cameras,
+            self.n_frames,
+            self.video,
+            self.device,
+            overwrite=self.overwrite,
         )
         console.print(f"wrote {n} views to {self.out}")
 
@@ -115,22 +153,35 @@ class EvalCommand:
     in_box: Path | None = None
     """Box JSON: the 'In' region (object moved in)."""
     images: Path | None = None
-    """Write rendered|ground-truth side-by-side images here."""
+    """Write rendered|ground-truth side-by-side images here (a new folder)."""
     device: str = "auto"
+    overwrite: bool = False
+    """Replace the --images folder if it holds earlier evaluation images (never anything
+    else; a --json file is replaced when it holds JSON that is no dataset or scene file)."""
 
     def run(self) -> None:
         from neoedit.data import load_scene_data
         from neoedit.eval.evaluate import evaluate
         from neoedit.geometry.box import load_boxes
         from neoedit.scene import load_scene
-        from neoedit.training.trainer import resolve_device
-        from neoedit.utils.io import atomic_write_json
+        from neoedit.utils.device import resolve_device
+        from neoedit.utils.io import atomic_directory, atomic_write_json, check_writable_output
 
+        inputs = [self.scene, self.data, self.out_box, self.in_box]
+        if self.json:
+            check_writable_output(self.json, inputs, "json", overwrite=True)
+        if self.images:
+            check_writable_output(self.images, inputs, "eval-images", self.overwrite)
         scene = load_scene(self.scene, resolve_device(self.device))
         data = load_scene_data(self.data)
         out_boxes = load_boxes(self.out_box) if self.out_box else []
         in_boxes = load_boxes(self.in_box) if self.in_box else []
-        result = evaluate(scene, data, self.split, out_boxes, in_boxes, self.images)
+        with (
+            atomic_directory(self.images, self.overwrite, "eval-images")
+            if self.images
+            else contextlib.nullcontext()
+        ) as image_dir:
+            result = evaluate(scene, data, self.split, out_boxes, in_boxes, image_dir)
         if self.json:
             atomic_write_json(self.json, result)
         console.print_json(json.dumps(result))

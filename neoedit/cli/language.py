@@ -13,6 +13,8 @@ from rich.console import Console
 
 from neoedit.errors import NeoError
 from neoedit.language.localize import QueryConfig
+from neoedit.utils.io import check_writable_output, mark_output
+from neoedit.utils.validate import user_message
 
 console = Console()
 
@@ -43,7 +45,7 @@ class QueryCommand:
         from neoedit.language.relevancy import split_prompts
         from neoedit.language.text import load_text_encoder
         from neoedit.scene import load_scene
-        from neoedit.training.trainer import resolve_device
+        from neoedit.utils.device import resolve_device
         from neoedit.utils.io import atomic_write_json
 
         prompts = split_prompts(self.prompt)
@@ -51,6 +53,7 @@ class QueryCommand:
             raise NeoError('empty prompt: say which object to find, e.g. "red mug"')
         if self.views < 0 or not 0 < self.image_scale <= 4:
             raise NeoError("--views must be >= 0 and --image-scale in (0, 4]")
+        self._check_outputs()
         scene = load_scene(self.scene, resolve_device(self.device))
         if scene.meta.language is None:
             raise NeoError(f"{self.scene} has no language field (train it on data with a teacher)")
@@ -70,18 +73,16 @@ class QueryCommand:
                 console.print(f"wrote {path}")
         if misses:
             for miss in misses:
-                console.print(f"[bold red]{miss}[/]", highlight=False)
+                console.print(f"[bold red]{user_message(miss)}[/]", highlight=False)
             raise SystemExit(1)
         if self.json is not None:
             atomic_write_json(self.json, boxes[0] if len(boxes) == 1 else boxes)
 
     def _pictures(self, scene, results, prompts, text) -> Path | None:
         from neoedit.language.report import write_query_images
-        from neoedit.rendering.export import scene_cameras
-        from neoedit.viz.boxes import scaled_cameras
 
         try:
-            cameras, _, split = scene_cameras(Path(scene.meta.data_path))
+            cameras, _, split = scene.scan_cameras()
         except NeoError as e:
             console.print(f"[yellow]no pictures: the scene's dataset cannot be read ({e})[/]")
             return None
@@ -89,6 +90,19 @@ class QueryCommand:
         pick = train[
             np.linspace(0, len(train) - 1, min(self.views, len(train))).round().astype(int)
         ]
-        cams = scaled_cameras(cameras.subset(pick), self.image_scale)
-        out = self.out or Path("outputs/query") / Path(self.scene).resolve().name
-        return write_query_images(scene, results, prompts, text, cams, out, self.query)
+        cams = cameras.subset(pick).scaled(self.image_scale)
+        out = self._pictures_dir()
+        path = write_query_images(scene, results, prompts, text, cams, out, self.query)
+        mark_output(out, "query")  # a later query may update this folder's picture
+        return path
+
+    def _pictures_dir(self) -> Path:
+        return self.out or Path("outputs/query") / Path(self.scene).resolve().name
+
+    def _check_outputs(self) -> None:
+        """--json may replace an earlier JSON result, the pictures folder an earlier query's
+        picture; nothing else (and never inside the scene)."""
+        if self.json is not None:
+            check_writable_output(self.json, [self.scene], "json", overwrite=True)
+        if self.views:
+            check_writable_output(self._pictures_dir(), [self.scene], "query", overwrite=True)

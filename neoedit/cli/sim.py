@@ -15,7 +15,7 @@ from rich.table import Table
 from neoedit.errors import NeoError
 from neoedit.sim.spec import load_scene_spec
 from neoedit.sim.suite import benchmark_scenes
-from neoedit.utils.io import atomic_write_json
+from neoedit.utils.io import atomic_write_json, check_writable_output, output_kind
 
 console = Console()
 
@@ -41,6 +41,7 @@ class SimSceneCommand:
         from neoedit.sim.run import simulate_scene  # imports pybullet, which prints a banner
 
         spec = load_scene_spec(self.spec)
+        check_writable_output(self.out, [self.spec, self.objects_dir], "sim", self.overwrite)
         summary = simulate_scene(spec, self.out, self.spec.parent, self.objects_dir, self.overwrite)
         console.print(
             f"wrote {self.out} ({', '.join(summary['scans'])}) in {summary['seconds']:.1f} s, "
@@ -66,6 +67,8 @@ class SimBenchmarkCommand:
     def run(self) -> None:
         from neoedit.sim.run import simulate_scene  # imports pybullet, which prints a banner
 
+        if not 0 <= self.seed < 2**32:
+            raise NeoError(f"--seed must be in [0, 2^32), got {self.seed}")
         scenes = benchmark_scenes(self.profile, self.seed)
         known = [s.name for s in scenes]
         unknown = sorted(set(self.only) - set(known))
@@ -73,6 +76,7 @@ class SimBenchmarkCommand:
             raise NeoError(f"unknown scene(s) {unknown}; the suite has {known}")
         if self.only:
             scenes = [s for s in scenes if s.name in self.only]
+        self._check_out(scenes)
         self.out.mkdir(parents=True, exist_ok=True)
         table = Table(title=f"NEO-Sim {self.profile} (seed {self.seed}) -> {self.out}")
         for col in ("scene", "kind", "setup", "scans", "objects", "seconds", "MB"):
@@ -113,3 +117,14 @@ class SimBenchmarkCommand:
         )
         console.print(table)
         console.print(f"total {total_s:.1f} s, {_dir_size_mb(self.out):.1f} MB")
+
+    def _check_out(self, scenes: list) -> None:
+        """OUT is a folder (or can be made); every scene folder already in it is a simulated
+        scene (kept, or replaced with --overwrite), never anything else."""
+        if self.out.exists() and not self.out.is_dir():
+            raise NeoError(f"{self.out} exists and is not a folder")
+        check_writable_output(self.out / "suite.json", [], "json", overwrite=True)
+        for spec in scenes:
+            target = self.out / spec.name
+            if target.exists() and output_kind(target) != "sim":
+                check_writable_output(target, [], "sim", self.overwrite)

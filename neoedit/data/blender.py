@@ -16,6 +16,7 @@ from neoedit.cameras.cameras import validate_pose
 from neoedit.data.images import read_rgba
 from neoedit.data.nerfstudio import read_json
 from neoedit.data.scene_data import SceneData
+from neoedit.data.validate import check_rotation
 from neoedit.errors import DataError
 
 SPLITS = ("train", "val", "test")
@@ -44,14 +45,17 @@ def load_blender(
         split[name] = []
         for i, frame in enumerate(frames):
             where = f"{tf} frame {i}"
-            if "file_path" not in frame or "transform_matrix" not in frame:
+            if not isinstance(frame, dict) or not {"file_path", "transform_matrix"} <= frame.keys():
                 raise DataError(f"{where}: needs 'file_path' and 'transform_matrix'")
-            rel = str(frame["file_path"])
+            if not isinstance(frame["file_path"], str) or not frame["file_path"].strip():
+                raise DataError(f"{where}: 'file_path' must be a non-empty path")
+            rel = frame["file_path"]
             if not Path(rel).suffix:
                 rel += ".png"
             img, alpha = read_rgba(root / rel, background_rgb)
             alphas.append(np.full(img.shape[:2], 255, np.uint8) if alpha is None else alpha)
-            poses.append(validate_pose(np.asarray(frame["transform_matrix"]), where))
+            poses.append(validate_pose(frame["transform_matrix"], where))
+            check_rotation(poses[-1], where)
             focal.append(0.5 * img.shape[1] / np.tan(0.5 * angle))
             split[name].append(len(file_paths))
             file_paths.append(rel)

@@ -11,7 +11,11 @@ from neoedit.errors import DataError
 
 
 def _read(path: Path, what: str) -> np.ndarray:
-    if not path.is_file():
+    try:
+        found = path.is_file()
+    except OSError as e:
+        raise DataError(f"cannot read {what} {path}: {e.strerror or e}") from None
+    if not found:
         raise DataError(f"{what} not found: {path}")
     try:
         return np.asarray(iio.imread(path))
@@ -58,12 +62,20 @@ def read_depth_m(path: Path, unit_scale_m: float) -> np.ndarray:
     if path.suffix == ".npy":
         if not path.is_file():
             raise DataError(f"depth not found: {path}")
-        depth = np.load(path).astype(np.float32)
+        try:
+            raw = np.load(path, allow_pickle=False)
+        except (OSError, ValueError, EOFError) as e:  # pickled objects, truncated files
+            raise DataError(f"cannot read depth {path}: {e}") from None
+        if not isinstance(raw, np.ndarray) or raw.dtype.kind not in "biuf":
+            raise DataError(f"depth {path}: expected a numeric array of metres, got {raw.dtype}")
+        depth = raw.astype(np.float32)
     else:
         depth = _read(path, "depth").astype(np.float32) * unit_scale_m
     if depth.ndim == 3:
         depth = depth[..., 0]
-    return depth
+    if depth.ndim != 2:
+        raise DataError(f"depth {path}: expected an (H, W) image, got shape {depth.shape}")
+    return np.where(np.isfinite(depth), depth, 0.0).astype(np.float32)  # no value = no depth
 
 
 def read_label(path: Path, what: str) -> np.ndarray:

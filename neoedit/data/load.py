@@ -13,6 +13,13 @@ from neoedit.errors import DataError
 def load_scene_data(path: Path) -> SceneData:
     """Load a nerfstudio (``transforms.json``) or Blender (``transforms_train.json``) dataset."""
     path = Path(path)
+    try:
+        return _load(path)
+    except PermissionError as e:
+        raise DataError(f"cannot read the dataset {path}: {e.strerror} ({e.filename})") from None
+
+
+def _load(path: Path) -> SceneData:
     if path.is_file() and path.name.endswith(".json"):
         return load_nerfstudio(path)
     if (path / "transforms.json").is_file():

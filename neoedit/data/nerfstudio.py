@@ -22,6 +22,12 @@ from neoedit.cameras import Cameras
 from neoedit.cameras.cameras import validate_pose
 from neoedit.data.images import read_depth_m, read_label, read_rgba
 from neoedit.data.scene_data import SceneData
+from neoedit.data.validate import (
+    MAX_COORD_M,
+    check_camera_model,
+    check_intrinsics,
+    check_rotation,
+)
 from neoedit.errors import DataError
 
 INTRINSIC_KEYS = ("fl_x", "fl_y", "cx", "cy", "w", "h")
@@ -34,8 +40,10 @@ def read_json(path: Path) -> Any:
         raise DataError(f"file not found: {path}")
     try:
         return json.loads(path.read_text())
-    except json.JSONDecodeError as e:
-        raise DataError(f"{path} is not valid JSON: {e}") from e
+    except OSError as e:
+        raise DataError(f"cannot read {path}: {e.strerror or e}") from None
+    except (ValueError, RecursionError) as e:  # JSONDecodeError, UnicodeDecodeError
+        raise DataError(f"{path} is not valid JSON: {e}") from None
 
 
 def _number(d: dict[str, Any], key: str, where: str) -> float:
@@ -54,10 +62,11 @@ def _intrinsics(meta: dict[str, Any], frame: dict[str, Any], where: str) -> list
         values.append(_number(source, key, where))
     for key in DISTORTION_KEYS:
         source = frame if key in frame else meta
-        if abs(float(source.get(key, 0.0))) > 1e-12:
+        if key in source and abs(_number(source, key, where)) > 1e-12:
             raise DataError(
                 f"{where}: lens distortion ('{key}') is not supported; undistort the images first"
             )
+    check_intrinsics(values, where)
     return values
 
 
@@ -74,6 +83,8 @@ def _split_indices(
     ):
         if key not in meta:
             continue
+        if not isinstance(meta[key], list) or not all(isinstance(f, str) for f in meta[key]):
+            raise DataError(f"{path}: '{key}' must be a list of file paths")
         idx = []
         for f in meta[key]:
             k = Path(f).as_posix().removeprefix("./")
@@ -108,13 +119,55 @@ def _parse_cameras(tf_path: Path, meta: dict[str, Any]) -> tuple[Cameras, list[s
             raise DataError(f"{where}: missing 'file_path'")
         if "transform_matrix" not in frame:
             raise DataError(f"{where}: missing 'transform_matrix'")
+        _check_paths(frame, where)
+        check_camera_model(meta, frame, where)
         poses.append(validate_pose(frame["transform_matrix"], where))
+        check_rotation(poses[-1], where)
         intr.append(_intrinsics(meta, frame, where))
-        file_paths.append(str(frame["file_path"]))
+        file_paths.append(frame["file_path"])
     k = np.asarray(intr)
     return Cameras(
         np.stack(poses), k[:, 0], k[:, 1], k[:, 2], k[:, 3], k[:, 4], k[:, 5]
     ), file_paths
+
+
+def _check_paths(frame: dict[str, Any], where: str) -> None:
+    for key in ("file_path", "depth_file_path", "mask_path", "instance_path"):
+        if key in frame and (not isinstance(frame[key], str) or not frame[key].strip()):
+            raise DataError(f"{where}: '{key}' must be a non-empty path, got {frame[key]!r}")
+
+
+def _extras(
+    meta: dict[str, Any], tf_path: Path
+) -> tuple[tuple[float, float, float], float, np.ndarray | None]:
+    """The background colour, the depth unit [m] and the scene box of a transforms.json."""
+    bg = meta.get("background_color", (1.0, 1.0, 1.0))
+    arr = np.asarray(bg, dtype=object)
+    if arr.shape != (3,) or not all(_unit_number(v) for v in bg):
+        raise DataError(f"{tf_path}: 'background_color' must be 3 numbers in [0, 1], got {bg!r}")
+    unit = (
+        _number(meta, "depth_unit_scale_factor", str(tf_path))
+        if "depth_unit_scale_factor" in meta
+        else 1e-3
+    )
+    if unit <= 0:
+        raise DataError(f"{tf_path}: 'depth_unit_scale_factor' must be positive, got {unit:g}")
+    aabb = meta.get("scene_aabb")
+    if aabb is None:
+        return (float(bg[0]), float(bg[1]), float(bg[2])), unit, None
+    try:
+        box = np.asarray(aabb, dtype=np.float64).reshape(2, 3)
+    except (TypeError, ValueError):
+        box = np.full((2, 3), np.nan)
+    if not np.all(np.abs(box) <= MAX_COORD_M) or not np.all(box[1] > box[0]):
+        raise DataError(
+            f"{tf_path}: 'scene_aabb' must be [[xmin,ymin,zmin],[xmax,ymax,zmax]] with max > min, got {aabb!r}"
+        )
+    return (float(bg[0]), float(bg[1]), float(bg[2])), unit, box
+
+
+def _unit_number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and 0.0 <= v <= 1.0
 
 
 def load_cameras(path: Path) -> tuple[Cameras, list[str], dict[str, np.ndarray]]:
@@ -131,8 +184,8 @@ def load_nerfstudio(
     tf_path, meta = _read_meta(path)
     root = tf_path.parent
     cameras, file_paths = _parse_cameras(tf_path, meta)
-    bg = background_rgb or tuple(meta.get("background_color", (1.0, 1.0, 1.0)))
-    unit = float(meta.get("depth_unit_scale_factor", 1e-3))
+    meta_bg, unit, aabb = _extras(meta, tf_path)
+    bg = background_rgb or meta_bg
 
     images, alphas, depths, masks, labels = [], [], [], [], []
     for i, frame in enumerate(meta["frames"]):
@@ -144,11 +197,13 @@ def load_nerfstudio(
         images.append(img)
         alphas.append(alpha)
         if "depth_file_path" in frame:
-            depths.append(read_depth_m(root / frame["depth_file_path"], unit))
+            depths.append(_sized(read_depth_m(root / frame["depth_file_path"], unit), h, w, where))
         if "mask_path" in frame:
-            masks.append(read_label(root / frame["mask_path"], "mask") > 0)
+            masks.append(_sized(read_label(root / frame["mask_path"], "mask"), h, w, where) > 0)
         if "instance_path" in frame:
-            labels.append(read_label(root / frame["instance_path"], "instance image"))
+            labels.append(
+                _sized(read_label(root / frame["instance_path"], "instance image"), h, w, where)
+            )
     sizes = {im.shape for im in images}
     if len(sizes) != 1:
         raise DataError(f"{tf_path}: all images must share one size, found {sorted(sizes)}")
@@ -163,7 +218,6 @@ def load_nerfstudio(
         return np.stack(items)
 
     names, objects = _instance_names(root)
-    aabb = meta.get("scene_aabb")
     return SceneData(
         root=root,
         file_paths=file_paths,
@@ -177,8 +231,16 @@ def load_nerfstudio(
         instance_names=names,
         objects=objects,
         background_rgb=bg,
-        scene_aabb_m=None if aabb is None else np.asarray(aabb, dtype=np.float64).reshape(2, 3),
+        scene_aabb_m=aabb,
     )
+
+
+def _sized(image: np.ndarray, h: int, w: int, where: str) -> np.ndarray:
+    if image.shape[:2] != (h, w):
+        raise DataError(
+            f"{where}: a depth, mask or instance image is {image.shape[1]}x{image.shape[0]}, the frame {w}x{h}"
+        )
+    return image
 
 
 def _stack_alpha(alphas: list[np.ndarray | None], images: list[np.ndarray]) -> np.ndarray | None:
@@ -200,6 +262,11 @@ def _instance_names(root: Path) -> tuple[dict[int, str], list[dict[str, Any]]]:
     meta = read_json(path)
     try:
         names = {int(inst["id"]): str(inst["name"]) for inst in meta["instances"]}
-    except (KeyError, TypeError, ValueError) as e:
+    except (KeyError, TypeError, ValueError, OverflowError) as e:
         raise DataError(f"{path}: 'instances' must be a list of {{'id', 'name'}}") from e
-    return names, list(meta.get("objects", []))
+    objects = meta.get("objects", [])
+    if not isinstance(objects, list) or not all(
+        isinstance(o, dict) and "name" in o and "box" in o for o in objects
+    ):
+        raise DataError(f"{path}: 'objects' must be a list of {{'name', 'box', ...}}")
+    return names, objects

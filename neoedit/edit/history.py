@@ -10,6 +10,7 @@ from typing import Any
 
 from neoedit.errors import NeoError
 from neoedit.scene import Scene
+from neoedit.utils.io import check_writable_output
 
 
 def check_output(parent_dir: Path, out: Path, overwrite: bool = False) -> None:
@@ -20,6 +21,7 @@ def check_output(parent_dir: Path, out: Path, overwrite: bool = False) -> None:
         )
     if Path(out).exists() and not overwrite:
         raise NeoError(f"{out} already exists (choose another --out or pass --overwrite)")
+    check_writable_output(out, [parent_dir], "scene", overwrite)  # only a scene is replaced
 
 
 def new_version(parent: Scene, record: dict[str, Any]) -> Scene:

@@ -22,21 +22,26 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from neoedit.cameras import Cameras
 from neoedit.cameras.rays import CameraTensors
 from neoedit.edit.history import check_output, new_version
 from neoedit.edit.inpaint import Inpainter, make_inpainter
+from neoedit.edit.language_update import LanguageEdit, update_language
 from neoedit.edit.masks import grown_box, grown_box_clear_of
 from neoedit.edit.refine import RefineConfig, refine_removal
 from neoedit.edit.views import VirtualViewConfig, concat_cameras, virtual_cameras
 from neoedit.errors import NeoError
+from neoedit.fields.patched import edit_region
 from neoedit.geometry import OrientedBox
-from neoedit.rendering.export import scene_cameras
+from neoedit.rendering.occupancy import cells_in_boxes, refresh_grid
 from neoedit.scene import Scene, load_scene, save_scene
 from neoedit.utils.io import write_png
-from neoedit.viz.boxes import scaled_cameras
 from neoedit.viz.contact_sheet import tile_images
 
 REMOVAL_MODES = ("resample", "suppress")
+
+Strip = tuple[int, list[np.ndarray]]
+"""(round, tiles: rendered, masked and inpainted virtual views)."""
 
 
 @dataclass
@@ -62,30 +67,28 @@ class RemoveConfig:
     """Local diffusers inpainting pipeline directory (for --inpainter diffusion)."""
     inpaint_prompt: str = "an empty table surface"
     """Text prompt of the diffusion inpainter."""
+    virtual_views: bool = True
+    """Inpaint on virtual object-centred views (the paper's view distribution); False: on
+    the scan cameras that face the box (the ablation)."""
     views: VirtualViewConfig = field(default_factory=VirtualViewConfig)
     refine: RefineConfig = field(default_factory=RefineConfig)
 
 
-def remove_object(
-    scene_dir: Path,
-    out: Path,
+def remove(
+    parent: Scene,
     boxes: list[OrientedBox],
     cfg: RemoveConfig,
     prompt: str | None = None,
-    device: torch.device | str = "cpu",
-    overwrite: bool = False,
     inpainter: Inpainter | None = None,
-) -> Scene:
-    """Write a new version of the scene at ``out`` with ``boxes`` removed; returns it.
-    ``inpainter`` overrides ``cfg.inpainter`` with any object of the :class:`Inpainter`
-    protocol (your own 2-D inpainting model)."""
+) -> tuple[Scene, list[Strip]]:
+    """A new version of ``parent`` with ``boxes`` removed (``parent`` is left unchanged),
+    and the virtual-view strips of every inpainting round (for the report)."""
     if cfg.removal not in REMOVAL_MODES:
         raise NeoError(f"unknown removal {cfg.removal!r} (choose from {', '.join(REMOVAL_MODES)})")
     if not boxes:
         raise NeoError("nothing to remove: give a prompt or --box")
-    check_output(scene_dir, out, overwrite)
+    check_boxes_in_scene(parent, boxes)
     t0 = time.perf_counter()
-    parent = load_scene(scene_dir, device)
     work = working_boxes(parent, boxes, cfg)
     record = {
         "type": "remove",
@@ -99,44 +102,102 @@ def remove_object(
         "config": dataclasses.asdict(cfg),
     }
     child = new_version(parent, record)
-    box_dicts = [b.to_dict() for b in work]
-    report = Path(out) / "report"
-    strips: list[tuple[int, list[np.ndarray]]] = []
+    strips: list[Strip] = []
+    timings: dict[str, float] = {}
     if not cfg.inpaint:
-        if cfg.removal == "resample":
-            child.meta.cut_boxes += box_dicts
-        else:
-            child.meta.suppress_boxes += box_dicts
+        key = "cut_boxes" if cfg.removal == "resample" else "suppress_boxes"
+        getattr(child.meta, key).extend(b.to_dict() for b in work)
     else:
-        if inpainter is None:
-            inpainter = make_inpainter(
-                cfg.inpainter, cfg.inpaint_path, cfg.inpaint_prompt, str(device)
-            )
-        cameras, _, split = scene_cameras(Path(parent.meta.data_path))
-        train_cams = cameras.subset(split["train"])
-        virtual = concat_cameras([virtual_cameras(b, train_cams, cfg.views) for b in boxes])
-
-        def keep_strip(k, rendered, masks, inpainted):
-            masked = [
-                np.where(m[..., None], np.array([255, 0, 255], np.uint8), r)
-                for r, m in zip(rendered, masks, strict=True)
-            ]
-            strips.append((k, [*rendered, *masked, *inpainted]))
-
-        child.meta.edits[-1]["timings"] = refine_removal(
-            child, work, virtual, inpainter, cfg.refine, keep_strip, cfg.removal, train_cams
-        )
-    if child.surface_points_m is not None:
-        pts = child.surface_points_m.cpu().numpy()
-        keep = np.ones(len(pts), bool)
-        for b in work:
-            keep &= ~b.contains(pts)
-        child.surface_points_m = child.surface_points_m[
-            torch.as_tensor(keep, device=child.surface_points_m.device)
-        ]
+        timings = inpaint_removal(child, work, boxes, cfg, inpainter, strips)
+        t = time.perf_counter()
+        region = [edit_region(b, cfg.refine.below_m) for b in work]
+        refresh_grid(child.grid, child.field.density, cells_in_boxes(child.grid, region))
+        timings["grid_s"] = round(time.perf_counter() - t, 2)
+    timings.update(update_language(parent, child, LanguageEdit(source=work, targets=[])))
+    child.meta.edits[-1]["timings"] = timings
     child.meta.edits[-1]["seconds"] = round(time.perf_counter() - t0, 2)
+    return child, strips
+
+
+def inpaint_removal(
+    child: Scene,
+    work: list[OrientedBox],
+    boxes: list[OrientedBox],
+    cfg: RemoveConfig,
+    inpainter: Inpainter | None = None,
+    strips: list[Strip] | None = None,
+) -> dict[str, float]:
+    """Train the removal patch of ``child`` (in place): virtual views around ``boxes``
+    (spiral) or, with ``cfg.virtual_views`` off, the scan cameras that face them; returns
+    timings. Each round's (rendered, masked, inpainted) crops go to ``strips``."""
+    if inpainter is None:
+        inpainter = make_inpainter(
+            cfg.inpainter, cfg.inpaint_path, cfg.inpaint_prompt, str(child.field.aabb.device)
+        )
+    cameras, _, split = child.scan_cameras()
+    train_cams = cameras.subset(split.get("train", np.arange(len(cameras))))
+    if cfg.virtual_views:
+        virtual = concat_cameras([virtual_cameras(b, train_cams, cfg.views) for b in boxes])
+    else:
+        virtual = facing_cameras(train_cams, boxes, 4 * cfg.views.turns).scaled(
+            cfg.views.image_scale
+        )
+
+    def keep_strip(k, rendered, masks, inpainted):
+        if strips is None:
+            return
+        masked = [
+            np.where(m[..., None], np.array([255, 0, 255], np.uint8), r)
+            for r, m in zip(rendered, masks, strict=True)
+        ]
+        strips.append((k, [*rendered, *masked, *inpainted]))
+
+    return refine_removal(
+        child, work, virtual, inpainter, cfg.refine, keep_strip, cfg.removal, train_cams
+    )
+
+
+def facing_cameras(cameras: Cameras, boxes: list[OrientedBox], n: int) -> Cameras:
+    """The ``n`` cameras whose optical axis points most directly at the boxes' centre (the
+    ablation without the virtual object-centred views)."""
+    centre = np.mean([b.center_m for b in boxes], axis=0)
+    to_box = centre - cameras.camera_to_world[:, :3, 3]
+    to_box /= np.linalg.norm(to_box, axis=1, keepdims=True)
+    forward = -cameras.camera_to_world[:, :3, 2]  # OpenGL: cameras look down -z
+    order = np.argsort(-np.sum(forward * to_box, axis=1))
+    return cameras.subset(np.sort(order[:n]))
+
+
+def check_boxes_in_scene(scene: Scene, boxes: list[OrientedBox]) -> None:
+    """Refuse boxes that do not intersect the scene box (a typo in a box file)."""
+    aabb = scene.field.aabb.cpu().numpy()
+    for box in boxes:
+        corners = box.corners()
+        if np.any(corners.max(0) < aabb[0]) or np.any(corners.min(0) > aabb[1]):
+            raise NeoError(
+                f"box centred at {np.round(box.center_m, 3).tolist()} m lies outside the scene "
+                f"box {np.round(aabb, 3).tolist()}"
+            )
+
+
+def remove_object(
+    scene_dir: Path,
+    out: Path,
+    boxes: list[OrientedBox],
+    cfg: RemoveConfig,
+    prompt: str | None = None,
+    device: torch.device | str = "cpu",
+    overwrite: bool = False,
+    inpainter: Inpainter | None = None,
+) -> Scene:
+    """Load the scene at ``scene_dir``, remove ``boxes`` (:func:`remove`) and write the new
+    version to ``out`` with its report; returns it. ``inpainter`` overrides
+    ``cfg.inpainter`` with any object of the :class:`Inpainter` protocol."""
+    check_output(scene_dir, out, overwrite)
+    parent = load_scene(scene_dir, device)
+    child, strips = remove(parent, boxes, cfg, prompt, inpainter)
     save_scene(Path(out), child)
-    _write_report(report, parent, child, strips)
+    write_report(Path(out) / "report", parent, child, strips)
     return child
 
 
@@ -196,7 +257,7 @@ def neighbour_points(scene: Scene, box: OrientedBox, cfg: RemoveConfig) -> np.nd
 
 
 @torch.no_grad()
-def _write_report(
+def write_report(
     report: Path, parent: Scene, child: Scene, strips: list[tuple[int, list[np.ndarray]]]
 ) -> None:
     """before_after.png (three training views, ~160 px wide, before | after) and virtual_views_round_K.png
@@ -204,14 +265,11 @@ def _write_report(
     for k, tiles in strips:
         n = len(tiles) // 3
         write_png(report / f"virtual_views_round_{k}.png", tile_images(tiles, cols=n))
-    try:
-        cameras, _, split = scene_cameras(Path(parent.meta.data_path))
-    except NeoError:
-        return
-    train = split["train"]
+    cameras, _, split = parent.scan_cameras()
+    train = split.get("train", np.arange(len(cameras)))
     pick = train[np.linspace(0, len(train) - 1, min(3, len(train))).round().astype(int)]
     # a picture, not a measurement: at most ~160 px wide (halves a 320 px scan's cost)
-    cameras = scaled_cameras(cameras, min(1.0, 160.0 / float(np.max(cameras.width))))
+    cameras = cameras.scaled(min(1.0, 160.0 / float(np.max(cameras.width))))
     cams = CameraTensors(cameras, parent.field.aabb.device)
     tiles, labels = [], []
     for i in pick:

@@ -17,7 +17,6 @@ import numpy as np
 from neoedit.cameras import Cameras
 from neoedit.cameras.cameras import look_at
 from neoedit.geometry import OrientedBox
-from neoedit.viz.boxes import scaled_cameras
 
 
 @dataclass
@@ -62,16 +61,9 @@ def virtual_cameras(
     )
     poses = np.stack([look_at(e, center) for e in eyes])
     full = reference.with_poses(poses)
-    return scaled_cameras(full, cfg.image_scale) if cfg.image_scale != 1.0 else full
+    return full.scaled(cfg.image_scale) if cfg.image_scale != 1.0 else full
 
 
 def concat_cameras(sets: list[Cameras]) -> Cameras:
     """One camera set from several (virtual views around several boxes, in order)."""
-    if len(sets) == 1:
-        return sets[0]
-    return Cameras(
-        *(
-            np.concatenate([getattr(c, f) for c in sets])
-            for f in ("camera_to_world", "fx", "fy", "cx", "cy", "width", "height")
-        )
-    )
+    return Cameras.concat(sets)

@@ -42,9 +42,14 @@ def evaluate(
     out_boxes: Sequence[OrientedBox] = (),
     in_boxes: Sequence[OrientedBox] = (),
     image_dir: Path | None = None,
+    max_views: int | None = None,
 ) -> dict[str, Any]:
-    """Metrics of ``scene`` rendered at the ``split`` cameras of ``data`` (ground truth)."""
+    """Metrics of ``scene`` rendered at the ``split`` cameras of ``data`` (ground truth);
+    ``max_views`` evenly chosen of them when given."""
     indices = [int(i) for i in data.indices(split)]
+    if max_views is not None and 0 < max_views < len(indices):
+        pick = np.linspace(0, len(indices) - 1, max_views).round().astype(int)
+        indices = [indices[k] for k in pick]
     if not indices:
         raise ValueError(f"split '{split}' of {data.root} has no frames")
     t0 = time.perf_counter()

@@ -141,6 +141,17 @@ class HashGridEncoding(nn.Module):
     def output_dim(self) -> int:
         return self.cfg.output_dim
 
+    @torch.no_grad()
+    def touched_rows(self, x: torch.Tensor, chunk: int = 1 << 15) -> torch.Tensor:
+        """(L, T) bool: the table rows that points x (N,3) in [0,1]^3 read (any corner)."""
+        n_levels, table_size, _ = self.table.shape
+        mask = torch.zeros(n_levels * table_size, dtype=torch.bool, device=self.table.device)
+        offsets = (torch.arange(n_levels, device=x.device) * table_size)[None, :, None]
+        for i in range(0, len(x), chunk):
+            idx, _ = corner_indices_torch(x[i : i + chunk], self.resolutions, table_size)
+            mask[(idx + offsets).reshape(-1)] = True
+        return mask.reshape(n_levels, table_size)
+
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         if x.shape[0] == 0:
             return x.new_zeros((0, self.output_dim))

@@ -19,29 +19,26 @@ import numpy as np
 import torch
 from torch import nn
 
+from neoedit.fields.composed import ComposedField
 from neoedit.fields.radiance import RadianceField
-from neoedit.geometry import OrientedBox
+from neoedit.geometry import OrientedBox, points_in_box
 
 
 def inside_box(points: torch.Tensor, box: OrientedBox) -> torch.Tensor:
     """(N,) bool: which world points (N,3) lie inside the oriented box (faces included)."""
-    local = (points - points.new_tensor(box.center_m)) @ points.new_tensor(box.rotation)
-    return (local.abs() <= points.new_tensor(box.half_extents)).all(-1)
+    return points_in_box(points, box)
 
 
-class PatchedField(nn.Module):
-    """Base field + patches; same interface as :class:`RadianceField` (``aabb``,
-    ``density``, ``forward``)."""
+class PatchedField(ComposedField):
+    """Base field + patches (trainable copies owning regions); same interface as
+    :class:`RadianceField` (``aabb``, ``density``, ``forward``)."""
 
     def __init__(self, base: RadianceField):
-        super().__init__()
-        self.base = base
-        self.regions: list[list[OrientedBox]] = []
-        self.patches = nn.ModuleList()
+        super().__init__(base)
 
     @property
-    def aabb(self) -> torch.Tensor:
-        return self.base.aabb
+    def patches(self) -> nn.ModuleList:
+        return self.parts
 
     def add_patch(self, region: list[OrientedBox]) -> RadianceField:
         """Append a patch owning the boxes ``region``, initialised from the field that renders
@@ -56,51 +53,11 @@ class PatchedField(nn.Module):
             ]
         ).to(self.aabb.device)
         owners = self.owner(probe)
-        source = self.base if bool((owners < 0).all()) else self.patches[int(owners.max())]
+        source = self.base if bool((owners < 0).all()) else self.parts[int(owners.max())]
         new: RadianceField = copy.deepcopy(source)  # type: ignore[assignment]
         self.regions.append(list(region))
-        self.patches.append(new)
+        self.parts.append(new)
         return new
-
-    def owner(self, points: torch.Tensor) -> torch.Tensor:
-        """(N,) int64: index of the patch answering for each point, -1 for the base."""
-        who = torch.full((len(points),), -1, dtype=torch.long, device=points.device)
-        for i, region in enumerate(self.regions):
-            for box in region:
-                who[inside_box(points, box)] = i
-        return who
-
-    def _members(self, points: torch.Tensor):
-        """(field, indices of its points) for every field that answers for some points."""
-        who = self.owner(points)
-        fields: list[tuple[int, nn.Module]] = [(-1, self.base), *enumerate(self.patches)]
-        for k, f in fields:
-            idx = torch.nonzero(who == k).squeeze(1)
-            if len(idx):
-                yield f, idx
-
-    def density(self, points: torch.Tensor) -> torch.Tensor:
-        """sigma (N,) [1/m] at world points (N,3)."""
-        if not self.regions:
-            return self.base.density(points)
-        sigma = points.new_zeros(len(points))
-        for f, idx in self._members(points):
-            sigma = sigma.index_put((idx,), f.density(points[idx]))
-        return sigma
-
-    def forward(
-        self, points: torch.Tensor, directions: torch.Tensor
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        """sigma (N,) [1/m] and rgb (N,3) at world points (N,3) seen along directions (N,3)."""
-        if not self.regions:
-            return self.base(points, directions)
-        sigma = points.new_zeros(len(points))
-        rgb = points.new_zeros(len(points), 3)
-        for f, idx in self._members(points):
-            s, c = f(points[idx], directions[idx])
-            sigma = sigma.index_put((idx,), s)
-            rgb = rgb.index_put((idx,), c)
-        return sigma, rgb
 
 
 def edit_region(box: OrientedBox, below_m: float) -> OrientedBox:

@@ -5,9 +5,8 @@ from __future__ import annotations
 
 import torch
 
-from neoedit.fields.patched import inside_box
 from neoedit.fields.radiance import Field
-from neoedit.geometry import OrientedBox
+from neoedit.geometry import OrientedBox, points_in_box
 
 
 class SuppressedField(torch.nn.Module):
@@ -22,7 +21,7 @@ class SuppressedField(torch.nn.Module):
     def _outside(self, points: torch.Tensor) -> torch.Tensor:
         keep = torch.ones(len(points), dtype=torch.bool, device=points.device)
         for box in self.boxes:
-            keep &= ~inside_box(points, box)
+            keep &= ~points_in_box(points, box)
         return keep
 
     def density(self, points: torch.Tensor) -> torch.Tensor:

@@ -14,6 +14,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+import torch
 
 from neoedit.errors import NeoError
 from neoedit.geometry.transforms import rot_z, wrap_deg, yaw_of_rotation
@@ -86,6 +87,16 @@ class OrientedBox:
         """(8,3) corners in world frame; index bits (x,y,z) -> sign (-,+)."""
         signs = np.array([[(i >> 0) & 1, (i >> 1) & 1, (i >> 2) & 1] for i in range(8)]) * 2 - 1
         return (signs * self.half_extents) @ self.rotation.T + np.asarray(self.center_m)
+
+    def grown(self, margin_m: float) -> OrientedBox:
+        """The box grown by ``margin_m`` on every face (bottom included)."""
+        return OrientedBox(
+            self.center_m, tuple(float(s) + 2 * margin_m for s in self.size_m), self.yaw_deg
+        )
+
+    def lifted_bottom(self, lift_m: float) -> OrientedBox:
+        """The box with its bottom face raised by ``lift_m`` (top kept)."""
+        return self.with_bottom(self.center_m[2] - self.size_m[2] / 2 + lift_m)
 
     def extended_down(self, z_m: float) -> OrientedBox:
         """The box with its bottom lowered to ``z_m`` (unchanged if it already reaches it)."""
@@ -174,6 +185,13 @@ def _polygon_area(poly: np.ndarray) -> float:
         return 0.0
     x, y = poly[:, 0], poly[:, 1]
     return 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
+
+
+def points_in_box(points: torch.Tensor, box: OrientedBox) -> torch.Tensor:
+    """(N,) bool: which world points (N,3) (a tensor on any device) lie inside the oriented
+    box (faces included). The tensor counterpart of :meth:`OrientedBox.contains`."""
+    local = (points - points.new_tensor(box.center_m)) @ points.new_tensor(box.rotation)
+    return (local.abs() <= points.new_tensor(box.half_extents)).all(-1)
 
 
 def box_iou_3d(a: OrientedBox, b: OrientedBox) -> float:

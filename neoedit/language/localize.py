@@ -26,6 +26,7 @@ from neoedit.geometry.box import OrientedBox
 from neoedit.language.relevancy import CANONICAL_PHRASES, relevancy
 from neoedit.language.text import TextEncoder
 from neoedit.scene import Scene
+from neoedit.utils.validate import shorten
 
 
 class NoMatch(NeoError):
@@ -33,7 +34,7 @@ class NoMatch(NeoError):
 
     def __init__(self, prompt: str, best: float, threshold: float, reason: str | None = None):
         why = reason or f"best relevancy {best:.3f} < threshold {threshold:.3f}"
-        super().__init__(f"no object matched {prompt!r}: {why}")
+        super().__init__(f"no object matched {shorten(prompt)!r}: {why}")
         self.prompt, self.best = prompt, best
 
 

@@ -25,8 +25,8 @@ from neoedit.language.teachers import CLIPTeacher, DinoTeacher, LabelTeacher, Te
 from neoedit.language.text import TextEncoderSpec, load_text_encoder
 from neoedit.rendering.surface import render_surface
 from neoedit.scene import LanguageMeta, Scene
-from neoedit.utils.optim import fused_adam_kwargs
-from neoedit.utils.progress import make_progress
+from neoedit.training.loop import fit
+from neoedit.utils.optim import make_adam
 
 
 @dataclass
@@ -106,6 +106,54 @@ def sample_surface(
     return pos, v, u, points.cpu(), acc.cpu()
 
 
+def language_loss(
+    lang: LanguageField,
+    points: torch.Tensor,
+    targets: torch.Tensor,
+    dino: torch.Tensor | None = None,
+) -> torch.Tensor:
+    """Cosine distance of L(x) to the teacher's unit features (+ MSE of the DINO head)."""
+    out = lang(points)
+    loss = 1.0 - (out["language"] * targets).sum(-1).mean()
+    if dino is not None:
+        loss = loss + torch.mean((out["dino"] - dino) ** 2)
+    return loss
+
+
+def fit_language(
+    lang: LanguageField,
+    points: torch.Tensor,
+    targets: torch.Tensor,
+    dino: torch.Tensor | None,
+    train_idx: torch.Tensor,
+    cfg: LanguageTrainConfig,
+    generator: torch.Generator,
+    steps: int | None = None,
+    label: str = "language",
+) -> float:
+    """Fit ``lang`` to (point, target feature) pairs drawn from ``train_idx``; returns the
+    final smoothed loss. Learning rate decays 10x over the run."""
+    steps = cfg.steps if steps is None else steps
+    device = points.device
+    optimizer = make_adam([{"params": list(lang.parameters())}], cfg.lr, device)
+
+    def loss_fn(step: int) -> torch.Tensor:
+        pick = train_idx[torch.randint(0, len(train_idx), (cfg.batch,), generator=generator)]
+        pick = pick.to(device)
+        return language_loss(
+            lang, points[pick], targets[pick], None if dino is None else dino[pick]
+        )
+
+    return fit(
+        optimizer,
+        steps,
+        loss_fn,
+        label,
+        lr_scale=lambda step: 0.1 ** (step / max(steps, 1)),
+        status=lambda step, ema: f"cosine loss {ema:.4f}",
+    )
+
+
 def train_language(scene: Scene, data: SceneData, cfg: LanguageTrainConfig) -> Scene:
     """Train (or retrain) the language field of ``scene`` in place; returns the scene."""
     kind = resolve_teacher(cfg, data)
@@ -134,33 +182,13 @@ def train_language(scene: Scene, data: SceneData, cfg: LanguageTrainConfig) -> S
     dino_targets = dino.targets(pos, v, u)[0] if dino is not None else None
     field_cfg = LanguageFieldConfig(dim=teacher.dim, dino_dim=dino.dim if dino is not None else 0)
     lang = LanguageField(field_cfg, scene.field.aabb.cpu(), seed=cfg.seed).to(device)
-    optimizer = torch.optim.Adam(
-        lang.parameters(), lr=cfg.lr, betas=(0.9, 0.99), eps=1e-15, **fused_adam_kwargs(device)
-    )
     train_idx = torch.nonzero(valid)[:, 0]
     if len(train_idx) < 100:
         raise NeoError("too few surface points with a teacher label to train the language field")
     # the training pairs move to the device once, not every step
     points_d, targets_d = points.to(device), targets.to(device)
     dino_d = dino_targets.to(device) if dino_targets is not None else None
-    loss_ema = None
-    with make_progress() as progress:
-        task = progress.add_task("language", total=cfg.steps, status="")
-        for step in range(cfg.steps):
-            for group in optimizer.param_groups:
-                group["lr"] = cfg.lr * 0.1 ** (step / max(cfg.steps, 1))
-            pick = train_idx[torch.randint(0, len(train_idx), (cfg.batch,), generator=generator)]
-            pick = pick.to(device)
-            out = lang(points_d[pick])
-            loss = 1.0 - (out["language"] * targets_d[pick]).sum(-1).mean()
-            if dino_d is not None:
-                loss = loss + torch.mean((out["dino"] - dino_d[pick]) ** 2)
-            optimizer.zero_grad(set_to_none=True)
-            loss.backward()
-            optimizer.step()
-            value = float(loss.detach())
-            loss_ema = value if loss_ema is None else 0.9 * loss_ema + 0.1 * value
-            progress.update(task, completed=step + 1, status=f"cosine loss {loss_ema:.4f}")
+    loss_ema = fit_language(lang, points_d, targets_d, dino_d, train_idx, cfg, generator)
     keep = torch.randperm(len(points), generator=generator)[: cfg.max_surface_points]
     scene.language = lang
     scene.surface_points_m = points[keep].to(device)

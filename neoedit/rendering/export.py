@@ -13,22 +13,16 @@ import numpy as np
 from neoedit.cameras import Cameras, look_at
 from neoedit.cameras.cameras import orbit_center
 from neoedit.cameras.rays import CameraTensors
-from neoedit.data.load import load_scene_data
 from neoedit.data.nerfstudio import load_cameras
+from neoedit.data.validate import check_file_path
 from neoedit.errors import NeoError
 from neoedit.scene import Scene, load_scene
-from neoedit.utils.io import atomic_write_json, write_png
+from neoedit.utils.io import atomic_directory, atomic_write_json, check_writable_output, write_png
 from neoedit.utils.progress import track
 
 DEPTH_UNIT_M = 1e-3
-
-
-def scene_cameras(data_path: Path) -> tuple[Cameras, list[str], dict[str, np.ndarray]]:
-    """Cameras of the dataset a scene was trained on (images are not read for nerfstudio data)."""
-    if (Path(data_path) / "transforms.json").is_file():
-        return load_cameras(Path(data_path))
-    data = load_scene_data(Path(data_path))
-    return data.cameras, data.file_paths, data.split
+MAX_FRAMES = 3600
+"""Most spiral frames one render writes (two minutes of video at 30 fps)."""
 
 
 def spiral_cameras(cameras: Cameras, n_frames: int) -> Cameras:
@@ -116,17 +110,21 @@ def render_command(
     n_frames: int,
     video: bool,
     device: str,
+    overwrite: bool = False,
 ) -> int:
-    from neoedit.training.trainer import resolve_device
+    """``neo render``: checks the options and OUT first, renders into a temporary folder
+    that becomes OUT (marked as a render) only once every view is written."""
+    from neoedit.utils.device import resolve_device
 
+    if cameras_json is None and views == "spiral" and not 1 <= n_frames <= MAX_FRAMES:
+        raise NeoError(f"--n-frames must be between 1 and {MAX_FRAMES}, got {n_frames}")
+    check_writable_output(out, [scene_dir, cameras_json], "render", overwrite)
     scene = load_scene(scene_dir, resolve_device(device))
     if cameras_json is not None:
         cameras, names, _ = load_cameras(cameras_json)
     else:
-        data_cams, data_names, split = scene_cameras(Path(scene.meta.data_path))
+        data_cams, data_names, split = scene.scan_cameras()
         if views == "spiral":
-            if n_frames < 1:
-                raise NeoError("--n-frames must be at least 1")
             cameras = spiral_cameras(data_cams, n_frames)
             names = [f"images/spiral_{k:04d}.png" for k in range(n_frames)]
         else:
@@ -135,4 +133,15 @@ def render_command(
                 raise NeoError(f"the scene's dataset has no '{views}' views")
             cameras = data_cams.subset(idx)
             names = [data_names[i] for i in idx]
-    return render_to_dataset(scene, cameras, names, out, video)
+    _check_names(names, cameras_json or "the scene's dataset")
+    with atomic_directory(out, overwrite, kind="render") as tmp:
+        return render_to_dataset(scene, cameras, names, tmp, video)
+
+
+def _check_names(names: list[str], where: object) -> None:
+    """Output file names: relative, inside OUT, one per view."""
+    for name in names:
+        check_file_path(name, f"{where}")
+    seen = {Path(n).with_suffix("").as_posix().removeprefix("./") for n in names}
+    if len(seen) != len(names):
+        raise NeoError(f"{where}: two frames share a file_path; each view needs its own name")

@@ -8,11 +8,13 @@ network queries in cells that are empty.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import torch
 from torch import nn
+
+from neoedit.geometry import OrientedBox, points_in_box
 
 
 @dataclass
@@ -106,3 +108,64 @@ class OccupancyGrid(nn.Module):
             flat.scatter_reduce_(0, cells, new.float(), reduce="amax")
         self.n_updates += 1
         self.refresh_mask()
+
+
+@torch.no_grad()
+def refresh_grid(
+    grid: OccupancyGrid,
+    density_fn: Callable[[torch.Tensor], torch.Tensor],
+    cells: torch.Tensor | None = None,
+    samples: int = 16,
+    seed: int = 0,
+    chunk: int = 1 << 18,
+) -> None:
+    """Replace the cached density of ``cells`` (flat indices; all cells when None) by the
+    field's density now — the maximum over the cell centre and ``samples`` - 1 jittered
+    points, so a surface thinner than a cell is still found —, then refresh the occupied
+    mask. Every edit calls this on its new field, so content that appeared where the grid
+    was empty (a moved object's target) is marched."""
+    r = grid.cfg.resolution
+    device = grid.density.device
+    if cells is None:
+        cells = torch.arange(r**3, device=device)
+    if len(cells) == 0:
+        return
+    gen = torch.Generator(device=device).manual_seed(seed)
+    ijk = torch.stack([cells // (r * r), (cells // r) % r, cells % r], -1).float()
+    size = grid.aabb[1] - grid.aabb[0]
+    best = torch.zeros(len(cells), device=device)
+    offsets = [torch.full_like(ijk, 0.5)]
+    offsets += [torch.rand(ijk.shape, device=device, generator=gen) for _ in range(samples - 1)]
+    for offset in offsets:
+        points = grid.aabb[0] + (ijk + offset) / r * size
+        new = torch.cat([density_fn(points[i : i + chunk]) for i in range(0, len(points), chunk)])
+        best = torch.maximum(best, new.float())
+    grid.density.reshape(-1)[cells] = best
+    grid.n_updates.clamp_(min=1)
+    grid.refresh_mask()
+
+
+def cells_in_boxes(
+    grid: OccupancyGrid, boxes: Sequence[OrientedBox], margin_cells: int = 1
+) -> torch.Tensor:
+    """Flat indices of the cells whose centre lies in any of the oriented ``boxes`` grown by
+    ``margin_cells`` cells (so a cell cut by a face is included)."""
+    r = grid.cfg.resolution
+    device = grid.density.device
+    size = grid.aabb[1] - grid.aabb[0]
+    grow = float((size / r).max()) * margin_cells
+    keep = torch.zeros(r**3, dtype=torch.bool, device=device)
+    centres = (
+        grid.aabb[0]
+        + (
+            torch.stack(
+                torch.meshgrid(*[torch.arange(r, device=device)] * 3, indexing="ij"), -1
+            ).reshape(-1, 3)
+            + 0.5
+        )
+        / r
+        * size
+    )
+    for box in boxes:
+        keep |= points_in_box(centres, box.grown(grow))
+    return torch.nonzero(keep)[:, 0]

@@ -37,3 +37,9 @@ def distortion_loss(weights: torch.Tensor, s_lo: torch.Tensor, s_hi: torch.Tenso
         weights[:, :, None] * weights[:, None, :] * (mid[:, :, None] - mid[:, None, :]).abs()
     ).sum((-1, -2))
     return pairwise + (weights**2 * (s_hi - s_lo)).sum(-1) / 3.0
+
+
+def opacity_penalty(sigma: torch.Tensor, scale_m: float = 0.01) -> torch.Tensor:
+    """Mean opacity of ``scale_m``-long steps at densities ``sigma`` [1/m]: a bounded penalty
+    that pushes density towards zero (sparsity in training, L_reg in an edit's box)."""
+    return torch.mean(1.0 - torch.exp(-scale_m * sigma))

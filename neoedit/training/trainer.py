@@ -16,15 +16,17 @@ from rich.console import Console
 from neoedit.cameras.cameras import orbit_center
 from neoedit.cameras.rays import CameraTensors
 from neoedit.data import SceneData, load_scene_data
+from neoedit.data.scan import scan_record
 from neoedit.errors import NeoError
 from neoedit.fields.patched import PatchedField
 from neoedit.fields.radiance import RadianceField, RadianceFieldConfig
 from neoedit.language.training import LanguageTrainConfig, resolve_teacher, train_language
 from neoedit.rendering.occupancy import OccupancyGridConfig
 from neoedit.rendering.renderer import RenderConfig, render_image, render_rays
-from neoedit.rendering.volume import distortion_loss
+from neoedit.rendering.volume import distortion_loss, opacity_penalty
 from neoedit.scene import Scene, SceneMeta, load_optimizer_state, load_scene, save_scene
-from neoedit.utils.optim import fused_adam_kwargs
+from neoedit.utils.device import resolve_device
+from neoedit.utils.optim import field_param_groups, make_adam
 from neoedit.utils.progress import make_progress
 
 
@@ -67,14 +69,6 @@ class TrainConfig:
     checkpoint_every: int = 1000
     """Steps between checkpoints (0 = only at the end)."""
     seed: int = 0
-
-
-def resolve_device(name: str) -> torch.device:
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    if name.startswith("cuda") and not torch.cuda.is_available():
-        raise NeoError("--device cuda requested but CUDA is not available")
-    return torch.device(name)
 
 
 def median_camera_distance(data: SceneData) -> float:
@@ -131,17 +125,8 @@ class Trainer:
         """More loss terms, called with the step number (edits add theirs here)."""
         if not isinstance(scene.field, RadianceField):
             raise NeoError("only an unedited radiance field can be trained from the scan")
-        enc = list(scene.field.encoding.parameters())
-        mlp = [p for n, p in scene.field.named_parameters() if not n.startswith("encoding.")]
-        self.optimizer = torch.optim.Adam(
-            [
-                {"params": enc, "weight_decay": 0.0},
-                {"params": mlp, "weight_decay": cfg.weight_decay_mlp},
-            ],
-            lr=cfg.lr,
-            betas=(0.9, 0.99),
-            eps=1e-15,
-            **fused_adam_kwargs(device),
+        self.optimizer = make_adam(
+            field_param_groups(scene.field, cfg.lr, 1.0, cfg.weight_decay_mlp), cfg.lr, device
         )
 
     def batch(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -209,7 +194,7 @@ class Trainer:
                 self.cfg.sparsity_points, 3, device=self.device, generator=self.generator
             )
             sigma = field.density(aabb[0] + u * (aabb[1] - aabb[0]))
-            loss = loss + self.cfg.sparsity_loss_weight * (1.0 - torch.exp(-0.01 * sigma)).mean()
+            loss = loss + self.cfg.sparsity_loss_weight * opacity_penalty(sigma)
         for extra in self.extra_losses:
             loss = loss + extra(step)
         self.optimizer.zero_grad(set_to_none=True)
@@ -322,6 +307,7 @@ def train(
             grid=grid_cfg or OccupancyGridConfig(),
             render=render_cfg,
             train=dataclasses.asdict(cfg),
+            scan=scan_record(data.cameras, data.file_paths, data.split),
         )
         scene = Scene.create(meta, dev, seed=cfg.seed)
     if isinstance(scene.field, PatchedField):

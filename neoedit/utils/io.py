@@ -1,33 +1,121 @@
-"""Atomic writes: a reader never sees a half-written file or directory."""
+"""Safe writes: a reader never sees a half-written file or directory, a crash leaves nothing
+that the next run does not clean up, and nothing but a neoedit output of the same kind is
+ever replaced.
+
+Temporaries live beside their output as ``.NAME.neoedit-PID-XXXXXXXX.{tmp,partial,old,trash}``;
+a later write in the same folder removes those whose process is gone (a backup ``.old``
+whose output is missing is put back instead). Files and folders are fsynced before the
+rename that publishes them, and a previous version is swapped out in one atomic
+``renameat2(RENAME_EXCHANGE)`` where the system has it. New files and folders get the
+user's umask.
+"""
 
 from __future__ import annotations
 
 import contextlib
 import json
 import os
+import re
+import secrets
 import shutil
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
 import imageio.v3 as iio
 import numpy as np
 
+from neoedit.errors import NeoError
+from neoedit.utils.durable import exchange, fsync_dir, seal_tree
+
+TAG = "neoedit"
+MARKER = ".neoedit-output.json"
+"""Marks a folder as a neoedit output (renders, evaluation images, query pictures)."""
+MARKER_FORMAT = "neoedit.output/1"
+PROTECTED_JSON = {"transforms.json", "scene.json", "objects.json", "suite.json", MARKER}
+PROTECTED_JSON |= {f"transforms_{s}.json" for s in ("train", "val", "test")}
+_TEMP_RE = re.compile(
+    r"^\.(?P<name>.+)\.neoedit-(?P<pid>\d+)-[0-9a-f]{8}\.(?P<kind>tmp|partial|old|trash)$"
+)
+_LEGACY_RE = re.compile(r"^\.(?P<name>.+)\.[a-z0-9_]{8}\.(?P<kind>tmp|partial|old)$")
+_ACTIVE: set[str] = set()
+"""Temporaries this process is writing right now (never cleaned up as stale)."""
+
+
+def _temp_path(final: Path, kind: str) -> Path:
+    name = f".{final.name}.{TAG}-{os.getpid()}-{secrets.token_hex(4)}.{kind}"
+    return final.parent / name
+
+
+def _pid_alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return False  # our own: stale unless registered in _ACTIVE
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:
+        return True
+    return True
+
+
+def _remove(path: Path) -> None:
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path, ignore_errors=True)
+    else:
+        with contextlib.suppress(FileNotFoundError):
+            path.unlink()
+
+
+def clean_stale_temporaries(parent: Path, name: str | None = None) -> list[Path]:
+    """Remove what crashed writers left in ``parent`` (of output ``name`` only, if given);
+    a backup whose output is missing is restored instead. Returns the paths handled."""
+    handled: list[Path] = []
+    try:
+        entries = sorted(Path(parent).iterdir())
+    except OSError:
+        return handled
+    for entry in entries:
+        m = _TEMP_RE.match(entry.name)
+        legacy = m is None
+        if m is None:
+            m = _LEGACY_RE.match(entry.name)
+            if m is None or m["name"] != name:
+                continue  # an old-style temporary is only recognised by its output's name
+        elif str(entry) in _ACTIVE or _pid_alive(int(m["pid"])):
+            continue
+        if name is not None and m["name"] != name:
+            continue
+        final = entry.parent / m["name"]
+        source = entry / m["name"] if legacy and m["kind"] == "old" else entry
+        if m["kind"] == "old" and not final.exists() and source.exists():
+            os.replace(source, final)  # the crash came between the two renames: put it back
+        _remove(entry)
+        handled.append(entry)
+    return handled
+
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` via a temporary sibling and an atomic rename."""
+    """Write ``data`` to ``path`` via an fsynced temporary sibling and an atomic rename."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    tmp = _temp_path(path, "tmp")
+    _ACTIVE.add(str(tmp))
     try:
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)  # umask applies
         with os.fdopen(fd, "wb") as f:
             f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
         os.replace(tmp, path)
+        fsync_dir(path.parent)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
         raise
+    finally:
+        _ACTIVE.discard(str(tmp))
 
 
 def atomic_write_json(path: Path, obj: Any) -> None:
@@ -41,29 +129,213 @@ def write_png(path: Path, image: np.ndarray) -> None:
     atomic_write_bytes(path, iio.imwrite("<bytes>", image, extension=".png"))
 
 
+def _discard(path: Path, final: Path) -> None:
+    """Delete a previous version: first renamed to a ``.trash`` name (never restored), so an
+    interrupted deletion cannot leave a half-deleted backup that looks restorable."""
+    trash = _temp_path(final, "trash")
+    os.replace(path, trash)
+    _remove(trash)
+
+
+def _publish(tmp: Path, final: Path) -> None:
+    """Make the complete, fsynced ``tmp`` the new ``final``; at every moment ``final`` is
+    either the previous version or the new one (or, without ``renameat2``, the previous
+    version sits under an ``.old`` name that the next run restores)."""
+    seal_tree(tmp)
+    if not (final.exists() or final.is_symlink()):
+        os.replace(tmp, final)
+    elif exchange(tmp, final):
+        fsync_dir(final.parent)
+        _discard(tmp, final)  # tmp now holds the previous version
+    else:
+        backup = _temp_path(final, "old")
+        _ACTIVE.add(str(backup))
+        try:
+            os.replace(final, backup)
+            os.replace(tmp, final)
+            fsync_dir(final.parent)
+            _discard(backup, final)
+        finally:
+            _ACTIVE.discard(str(backup))
+    fsync_dir(final.parent)
+
+
+def _make_temp_dir(final: Path) -> Path:
+    tmp = _temp_path(final, "partial")
+    _ACTIVE.add(str(tmp))
+    tmp.mkdir(mode=0o777)  # the umask applies
+    return tmp
+
+
 @contextlib.contextmanager
-def atomic_directory(final: Path, overwrite: bool = False) -> Iterator[Path]:
+def atomic_directory(
+    final: Path, overwrite: bool = False, kind: str | None = None
+) -> Iterator[Path]:
     """Yield a temporary directory that becomes ``final`` only if the block succeeds.
 
-    On any exception the temporary directory is removed, so no partial output is
-    left behind. ``final`` must not exist unless ``overwrite`` is set.
+    On an exception the temporary directory is removed; after a hard kill the next write in
+    the same folder removes it. An existing ``final`` is replaced only with ``overwrite`` and
+    only if it is a neoedit output (of ``kind``, when given) or an empty folder. Folders of
+    kinds other than scenes and simulated scans are marked with :data:`MARKER`.
     """
     final = Path(final)
-    if final.exists() and not overwrite:
-        from neoedit.errors import NeoError
-
-        raise NeoError(f"output directory already exists: {final} (pass --overwrite to replace it)")
+    if final.exists() or final.is_symlink():
+        if not overwrite and not _is_empty_dir(final):
+            raise NeoError(
+                f"output directory already exists: {final} (pass --overwrite to replace it)"
+            )
+        refuse_foreign(final, kind)
     final.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".partial", dir=final.parent))
+    clean_stale_temporaries(final.parent, final.name)
+    tmp = _make_temp_dir(final)
     try:
         yield tmp
+        if kind is not None and kind not in ("scene", "sim"):
+            mark_output(tmp, kind)
+        _publish(tmp, final)
     except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
+        _remove(tmp)
         raise
-    if final.exists():  # swap: the old version stays complete until the new one is in place
-        backup = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".old", dir=final.parent))
-        os.replace(final, backup / final.name)
-        os.replace(tmp, final)
-        shutil.rmtree(backup, ignore_errors=True)
-    else:
-        os.replace(tmp, final)
+    finally:
+        _ACTIVE.discard(str(tmp))
+
+
+# -- what an existing path is, and whether a command may write there --------------------------
+
+
+def _read_json_quiet(path: Path) -> Any:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def mark_output(folder: Path, kind: str) -> None:
+    atomic_write_json(Path(folder) / MARKER, {"format": MARKER_FORMAT, "kind": kind})
+
+
+def output_kind(path: Path) -> str | None:
+    """'scene' (neoedit scene), 'sim' (simulated scans), the kind in a :data:`MARKER`, or None
+    when ``path`` is not a neoedit output folder."""
+    path = Path(path)
+    if not path.is_dir():
+        return None
+    meta = _read_json_quiet(path / "scene.json") if (path / "scene.json").is_file() else None
+    if isinstance(meta, dict):
+        if meta.get("format") == "neoedit.scene/1":
+            return "scene"
+        if {"scans", "spec", "actions"} <= meta.keys():
+            return "sim"
+    marker = _read_json_quiet(path / MARKER) if (path / MARKER).is_file() else None
+    if isinstance(marker, dict) and marker.get("format") == MARKER_FORMAT:
+        kind = marker.get("kind")
+        return kind if isinstance(kind, str) else None
+    with contextlib.suppress(OSError):  # a query folder written before the marker existed
+        if [p.name for p in path.iterdir()] == ["query.png"]:
+            return "query"
+    return None
+
+
+def _is_empty_dir(path: Path) -> bool:
+    try:
+        return path.is_dir() and not path.is_symlink() and not any(path.iterdir())
+    except OSError:
+        return False
+
+
+def _replaceable_json(path: Path) -> bool:
+    """A --json output may replace a previous result: a JSON file that is no dataset or
+    scene metadata."""
+    return (
+        path.is_file()
+        and not path.is_symlink()
+        and path.name not in PROTECTED_JSON
+        and _read_json_quiet(path) is not None
+    )
+
+
+def refuse_foreign(path: Path, kind: str | None) -> None:
+    """Raise unless the existing ``path`` may be replaced by an output of ``kind``."""
+    if kind == "json":
+        if not _replaceable_json(path):
+            raise NeoError(
+                f"{path} exists and is not a previous JSON result; refusing to replace it "
+                "(choose another path)"
+            )
+        return
+    found = output_kind(path)
+    if _is_empty_dir(path) or (found is not None and (kind is None or found == kind)):
+        return
+    what = (
+        "a file"
+        if path.is_file()
+        else "not a neoedit output"
+        if found is None
+        else f"a neoedit {found}"
+    )
+    raise NeoError(
+        f"{path} exists and is {what}; refusing to replace it with a neoedit "
+        f"{kind or 'output'} (choose another --out)"
+    )
+
+
+def _nearest_existing(path: Path) -> Path:
+    for candidate in [path, *path.parents]:
+        if candidate.exists():
+            return candidate
+    return Path.cwd()
+
+
+def probe_writable(folder: Path) -> None:
+    """Create and remove a file in ``folder``; a clear NeoError if that is not possible."""
+    try:
+        fd, probe = tempfile.mkstemp(prefix=f".{TAG}-probe-", dir=folder)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as e:
+        raise NeoError(f"cannot write to {folder}: {e.strerror or e}") from None
+
+
+def _check_not_input(out: Path, inputs: Sequence[Path | None]) -> None:
+    out_r = out.resolve()
+    for inp in inputs:
+        if inp is None:
+            continue
+        inp_r = Path(inp).resolve()
+        if out_r == inp_r:
+            raise NeoError(
+                f"{out} is an input of this command; an output never overwrites its input"
+            )
+        if inp_r in out_r.parents:
+            raise NeoError(f"{out} is inside the input {inp}; an output never goes into an input")
+        if out_r in inp_r.parents and out.exists():
+            raise NeoError(f"{out} holds the input {inp}; replacing it would delete the input")
+
+
+def check_writable_output(
+    out: Path,
+    inputs: Sequence[Path | None] = (),
+    kind: str = "scene",
+    overwrite: bool = False,
+    hint: str = "pass --overwrite to replace it",
+) -> None:
+    """Everything a writing command checks before its work starts (one rule for every verb).
+
+    ``out`` must not be, be inside or hold one of ``inputs``; an existing ``out`` must be a
+    neoedit output of ``kind`` (or an empty folder; for kind 'json', a JSON file that is no
+    dataset or scene metadata) and is replaced only with ``overwrite`` (``hint`` says
+    how to ask for that); the folder it goes to must be writable. Also removes what crashed runs left
+    there.
+    """
+    out = Path(out)
+    _check_not_input(out, inputs)
+    if out.exists() or out.is_symlink():
+        refuse_foreign(out, kind)
+        if not overwrite and not _is_empty_dir(out):
+            raise NeoError(f"{out} already exists ({hint})")
+    anchor = _nearest_existing(out.parent)
+    if not anchor.is_dir():
+        raise NeoError(f"cannot write {out}: {anchor} is not a directory")
+    probe_writable(anchor)
+    if anchor == out.parent:
+        clean_stale_temporaries(anchor)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import torch
 
 
@@ -15,3 +17,31 @@ def fused_adam_kwargs(device: torch.device | str) -> dict[str, bool]:
     except (RuntimeError, TypeError, ValueError):
         return {"foreach": True}
     return {"fused": True}
+
+
+def make_adam(
+    groups: list[dict[str, Any]], lr: float, device: torch.device | str
+) -> torch.optim.Adam:
+    """The one Adam set-up of the project (Instant-NGP's betas and eps; fused where the
+    device has it), for training, edits, distillation and the language field. ``groups``
+    are torch parameter groups; a group without ``lr`` gets ``lr``."""
+    return torch.optim.Adam(
+        groups, lr=lr, betas=(0.9, 0.99), eps=1e-15, **fused_adam_kwargs(device)
+    )
+
+
+def field_param_groups(
+    module: torch.nn.Module, lr: float, mlp_lr_factor: float = 1.0, mlp_weight_decay: float = 0.0
+) -> list[dict[str, Any]]:
+    """Two parameter groups of a hash-grid field: its table (``encoding.*``) at ``lr`` and
+    everything else (the MLPs) at ``lr * mlp_lr_factor``; groups without parameters (a
+    frozen part) are left out."""
+    enc = [p for n, p in module.named_parameters() if n.startswith("encoding.") and p.requires_grad]
+    mlp = [
+        p for n, p in module.named_parameters() if not n.startswith("encoding.") and p.requires_grad
+    ]
+    groups = [
+        {"params": enc, "lr": lr, "weight_decay": 0.0, "name": "table"},
+        {"params": mlp, "lr": lr * mlp_lr_factor, "weight_decay": mlp_weight_decay, "name": "mlp"},
+    ]
+    return [g for g in groups if g["params"]]

@@ -13,22 +13,6 @@ from neoedit.geometry import OrientedBox
 BOX_EDGES = [(a, b) for a in range(8) for b in range(a + 1, 8) if bin(a ^ b).count("1") == 1]
 
 
-def scaled_cameras(cameras: Cameras, scale: float) -> Cameras:
-    """The same cameras with images resized by ``scale`` (intrinsics scaled)."""
-    w = np.maximum((cameras.width * scale).round().astype(np.int64), 1)
-    h = np.maximum((cameras.height * scale).round().astype(np.int64), 1)
-    sx, sy = w / cameras.width, h / cameras.height
-    return Cameras(
-        cameras.camera_to_world,
-        cameras.fx * sx,
-        cameras.fy * sy,
-        cameras.cx * sx,
-        cameras.cy * sy,
-        w,
-        h,
-    )
-
-
 def draw_box(
     image: np.ndarray,
     cameras: Cameras,

@@ -1,0 +1,188 @@
+"""Keep the language field true after a geometric edit (paper Sec. III-D).
+
+Renders carry no labels, so the update must work for every teacher (simulator labels,
+CLIP, DINO). It composes the *parent's* language field region by region, exactly like the
+radiance field's teacher, and distils it into a copy:
+
+* inside a target box: the parent's features at T^-1 x (the object moved with its meaning);
+* inside a source box (the object is gone, the support was inpainted): the parent's
+  features at the point pushed horizontally out of the box's footprint, onto the surface
+  that surrounded it (the table); with no motion this is the whole removal update;
+* elsewhere: the parent's own features.
+
+The query cloud is refreshed the same way: the parent's surface points outside the edited
+boxes are kept, and surface points inside them are re-rendered from the *edited* radiance
+field at the scan's camera poses (the original poses Omega of the paper).
+"""
+
+from __future__ import annotations
+
+import copy
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from neoedit.cameras.rays import CameraTensors
+from neoedit.edit.masks import project_box_mask
+from neoedit.fields.composed import region_owner
+from neoedit.fields.suppressed import SuppressedField
+from neoedit.geometry import OrientedBox, points_in_box
+from neoedit.language.field import LanguageField
+from neoedit.language.training import LanguageTrainConfig, fit_language
+from neoedit.rendering.surface import render_surface
+from neoedit.scene import Scene
+
+
+@dataclass
+class LanguageUpdateConfig:
+    rays: int = 24576
+    """Scan pixels through the edited boxes rendered to new surface points."""
+    steps: int = 120
+    """Distillation steps of the language field."""
+    batch: int = 4096
+    edited_share: float = 0.5
+    """Share of each batch from points inside the edited boxes (the rest holds the parent's
+    features elsewhere)."""
+    lr: float = 5e-3
+    ring_m: float = 0.02
+    """A point in a source box takes the features of the surface this far outside the box's
+    footprint (the support it stood on)."""
+    margin_m: float = 0.01
+    """The edited boxes are grown by this much when replacing query points."""
+    min_accumulation: float = 0.5
+    seed: int = 0
+
+
+@dataclass
+class LanguageEdit:
+    """What moved where: ``source`` boxes were emptied; each target box shows its source
+    under ``transform`` (4,4)."""
+
+    source: list[OrientedBox]
+    targets: list[tuple[OrientedBox, np.ndarray]]
+
+
+def pushed_out_of_footprint(points: torch.Tensor, box: OrientedBox, ring_m: float) -> torch.Tensor:
+    """Points (N,3) inside ``box`` moved horizontally to ``ring_m`` outside its footprint
+    through the nearest side face (height kept)."""
+    rot = points.new_tensor(box.rotation)
+    centre = points.new_tensor(box.center_m)
+    local = (points - centre) @ rot
+    half = points.new_tensor(box.half_extents)
+    gap = half[:2] - local[:, :2].abs()  # distance to the x and y side faces
+    axis = torch.argmin(gap, dim=1)
+    rows = torch.arange(len(points), device=points.device)
+    side = torch.sign(local[rows, axis])
+    side = torch.where(side == 0, torch.ones_like(side), side)
+    local = local.clone()
+    local[rows, axis] = side * (half[axis] + ring_m)
+    return local @ rot.T + centre
+
+
+def composed_language_query(
+    points: torch.Tensor, edit: LanguageEdit, ring_m: float
+) -> torch.Tensor:
+    """Where the parent's language field is asked for the features at edited points (N,3):
+    the region rules above, targets over sources."""
+    regions = [[b] for b in edit.source] + [[b] for b, _ in edit.targets]
+    who = region_owner(points, regions)
+    query = points.clone()
+    for k, box in enumerate(edit.source):
+        sel = who == k
+        if sel.any():
+            query[sel] = pushed_out_of_footprint(points[sel], box, ring_m)
+    for j, (_, transform) in enumerate(edit.targets):
+        sel = who == len(edit.source) + j
+        if sel.any():
+            t = points.new_tensor(np.asarray(transform, dtype=np.float64))
+            query[sel] = (points[sel] - t[:3, 3]) @ t[:3, :3]
+    return query
+
+
+@torch.no_grad()
+def _teacher_targets(
+    parent: LanguageField, query: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor | None]:
+    out = [parent(query[i : i + 65536]) for i in range(0, len(query), 65536)]
+    lang = torch.cat([o["language"] for o in out])
+    dino = torch.cat([o["dino"] for o in out]) if "dino" in out[0] else None
+    return lang, dino
+
+
+@torch.no_grad()
+def _edited_surface(child: Scene, boxes: list[OrientedBox], cfg: LanguageUpdateConfig):
+    """Surface points (K,3) of the edited field inside the boxes, from scan pixels whose ray
+    crosses them."""
+    cameras, _, split = child.scan_cameras()
+    cams = cameras.subset(split.get("train", np.arange(len(cameras))))
+    pixels = []
+    for i in range(len(cams)):
+        mask = np.zeros((int(cams.height[i]), int(cams.width[i])), bool)
+        for box in boxes:
+            mask |= project_box_mask(cams, i, box)
+        vu = np.argwhere(mask)
+        pixels.append(np.column_stack([np.full(len(vu), i), vu]))
+    pix = np.concatenate(pixels)
+    device = child.field.aabb.device
+    if len(pix) == 0:
+        return torch.zeros((0, 3), device=device)
+    rng = np.random.default_rng(cfg.seed)
+    pix = pix[rng.choice(len(pix), min(cfg.rays, len(pix)), replace=False)]
+    pix_t = torch.as_tensor(pix, device=device)
+    rays = CameraTensors(cams, device).rays(pix_t[:, 0], pix_t[:, 1], pix_t[:, 2])
+    field_, cut = child.renderable()
+    if cut:  # a preview version's cut boxes: surface points behind them
+        field_ = SuppressedField(field_, cut)
+    points, acc = render_surface(field_, child.grid, rays, child.meta.render)
+    points = points[acc >= cfg.min_accumulation]
+    inside = torch.zeros(len(points), dtype=torch.bool, device=device)
+    for box in boxes:
+        inside |= points_in_box(points, box)
+    return points[inside]
+
+
+def update_language(
+    parent: Scene, child: Scene, edit: LanguageEdit, cfg: LanguageUpdateConfig | None = None
+) -> dict[str, float]:
+    """Update ``child``'s language field and query cloud (in place) for ``edit``; the
+    parent is read only. Returns timings and the final loss (empty without a language
+    field)."""
+    cfg = cfg or LanguageUpdateConfig()
+    if parent.language is None or parent.surface_points_m is None:
+        return {}
+    t0 = time.perf_counter()
+    boxes = [b.grown(cfg.margin_m) for b in [*edit.source, *(b for b, _ in edit.targets)]]
+    new_points = _edited_surface(child, boxes, cfg)
+    old = parent.surface_points_m
+    outside = torch.ones(len(old), dtype=torch.bool, device=old.device)
+    for box in boxes:
+        outside &= ~points_in_box(old, box)
+    kept = old[outside]
+    query = composed_language_query(new_points, edit, cfg.ring_m)
+    gen = torch.Generator().manual_seed(cfg.seed)
+    n_hold = min(len(kept), max(len(new_points), 4 * cfg.batch))
+    hold = kept[torch.randperm(len(kept), generator=gen)[:n_hold].to(kept.device)]
+    points = torch.cat([new_points, hold])
+    targets, dino = _teacher_targets(parent.language, torch.cat([query, hold]))
+    # batches: edited_share from the edited points, the rest from the held ones
+    weights = torch.cat(
+        [
+            torch.full((len(new_points),), cfg.edited_share / max(len(new_points), 1)),
+            torch.full((len(hold),), (1 - cfg.edited_share) / max(len(hold), 1)),
+        ]
+    )
+    draw = torch.multinomial(weights, cfg.steps * cfg.batch, replacement=True, generator=gen)
+    student = copy.deepcopy(parent.language).requires_grad_(True)
+    train_cfg = LanguageTrainConfig(steps=cfg.steps, batch=cfg.batch, lr=cfg.lr, seed=cfg.seed)
+    loss = fit_language(
+        student, points, targets, dino, draw, train_cfg, gen, label="language update"
+    )
+    child.language = student.requires_grad_(False)
+    child.surface_points_m = torch.cat([kept, new_points])
+    return {
+        "language_s": round(time.perf_counter() - t0, 2),
+        "language_loss": round(loss, 5),
+        "new_points": len(new_points),
+    }

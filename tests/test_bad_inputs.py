@@ -1,0 +1,274 @@
+"""Bad input, as a hostile but realistic user gives it (issue 12): every case ends in one
+clear message and exit status 2 (or succeeds), never a traceback, and a refused command
+leaves the workspace byte-identical with no temporary left behind.
+
+One case per line: ``C(id, argv, status, message fragment, setup)``. ``argv`` is split like a
+shell line; ``{data}``, ``{scene}`` and ``{ws}`` are a fresh copy of the tiny dataset, the
+tiny scene and the folder holding both (also the working directory).
+"""
+
+# ruff: noqa: F811 (the golden fixture is imported and used as an argument)
+from __future__ import annotations
+
+import shlex
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from neoedit.utils.io import mark_output
+from tests.safety_support import (
+    TINY_TRAIN_ARGS,
+    Setup,
+    Workspace,
+    chain,
+    changes,
+    golden,  # noqa: F401 (a fixture)
+    make_workspace,
+    nan_weights,
+    pickled_depth,
+    run_neo,
+    scale_rotation,
+    set_frame,
+    set_scene,
+    snapshot,
+    temporaries,
+)
+
+BOX_FAR = {"center": [100.0, 0.0, 0.05], "size": [0.1, 0.1, 0.1], "yaw_deg": 0}
+BOX_MUG = {"center": [0.076, -0.098, 0.046], "size": [0.074, 0.109, 0.09], "yaw_deg": 19.2}
+LONG = "x" * 10_000
+
+
+def write(name: str, content) -> Setup:
+    return lambda ws: ws.write(name, content)
+
+
+def cameras(**values) -> Setup:
+    """cams.json: the dataset's transforms.json (cameras only) with global keys changed."""
+
+    def apply(ws: Workspace) -> None:
+        meta = ws.transforms()
+        meta.update(values)
+        ws.write("cams.json", meta)
+
+    return apply
+
+
+def cameras_frame(**values) -> Setup:
+    def apply(ws: Workspace) -> None:
+        meta = ws.transforms()
+        meta["frames"][0].update(values)
+        meta["frames"] = meta["frames"][:2]
+        for key in ("train_filenames", "val_filenames", "test_filenames"):
+            meta.pop(key)
+        ws.write("cams.json", meta)
+
+    return apply
+
+
+NOTES = write("notes/todo.txt", "my notes")
+FILE = write("notes.txt", "my notes")
+MUG = write("mug.json", BOX_MUG)
+FAR = write("far.json", BOX_FAR)
+SPEC = write(
+    "spec.yaml", "name: s\nobjects:\n  - {name: mug, urdf: 'pybullet_data:objects/mug.urdf'}\n"
+)
+EMPTY = lambda ws: ws.path("notes").mkdir()  # noqa: E731
+SCENE2 = lambda ws: shutil.copytree(ws.scene, ws.path("scene2"))  # noqa: E731
+TRAIN = " ".join(TINY_TRAIN_ARGS)
+
+
+def OLD_RENDER(ws: Workspace) -> None:  # noqa: N802 (a setup constant, like the others)
+    ws.write("r/images/old.png", b"old")
+    mark_output(ws.path("r"), "render")
+
+
+@dataclass
+class C:
+    id: str
+    argv: str
+    code: int
+    fragment: str
+    setup: Setup | None = None
+    creates: tuple[str, ...] = ()
+    """For a case that succeeds: paths it must write."""
+    gone: tuple[str, ...] = ()
+    """For a case that succeeds: paths it replaced."""
+
+
+# one line per case
+# fmt: off
+CASES = [
+    # 1. never destroy: an output equal to, inside or holding an input; anything not ours
+    C("train-out-is-data", "train {data} --out {data} " + TRAIN, 2, "never overwrites its input"),
+    C("train-out-in-data", "train {data} --out {data}/s " + TRAIN, 2, "inside the input"),
+    C("train-out-holds-data", "train {data} --out {ws} " + TRAIN, 2, "holds the input"),
+    C("train-out-user-folder", "train {data} --out notes " + TRAIN, 2, "not a neoedit output", NOTES),
+    C("train-out-user-file", "train {data} --out notes.txt " + TRAIN, 2, "is a file", FILE),
+    C("train-out-scene", "train {data} --out {scene} " + TRAIN, 2, "--resume"),
+    C("train-resume-user-folder", "train {data} --out notes --resume " + TRAIN, 2, "not a neoedit output", NOTES),
+    C("train-ok", "train {data} --out s " + TRAIN, 0, "wrote", creates=("s/scene.json",)),
+    C("train-ok-empty-folder", "train {data} --out notes " + TRAIN, 0, "wrote", EMPTY, ("notes/field.safetensors",)),
+    C("remove-overwrite-user-folder", "remove {scene} --box mug.json --out notes --overwrite --no-inpaint", 2, "not a neoedit output", chain(NOTES, MUG)),
+    C("remove-overwrite-dataset", "remove {scene} --box mug.json --out {data} --overwrite --no-inpaint", 2, "not a neoedit output", MUG),
+    C("remove-out-is-scene", "remove {scene} --box mug.json --out {scene} --no-inpaint", 2, "never overwrites", MUG),
+    C("remove-out-in-scene", "remove {scene} --box mug.json --out {scene}/v --no-inpaint", 2, "inside the input", MUG),
+    C("remove-exists", "remove {scene} --box mug.json --out scene2 --no-inpaint", 2, "already exists", chain(MUG, SCENE2)),
+    C("remove-ok", "remove {scene} --box mug.json --out v1 --no-inpaint", 0, "wrote", MUG, ("v1/scene.json",)),
+    C("render-overwrite-dataset", "render {scene} --out {data} --overwrite", 2, "not a neoedit output"),
+    C("render-overwrite-scene", "render {scene} --out scene2 --overwrite", 2, "a neoedit scene", SCENE2),
+    C("render-overwrite-file", "render {scene} --out notes.txt --overwrite", 2, "is a file", FILE),
+    C("render-in-scene", "render {scene} --out {scene}/r", 2, "inside the input"),
+    C("render-overwrite-render", "render {scene} --out r --views eval --overwrite", 0, "wrote 3 views", OLD_RENDER, ("r/transforms.json",), ("r/images/old.png",)),
+    C("render-ok", "render {scene} --out r --views eval", 0, "wrote 3 views", creates=("r/transforms.json",)),
+    C("eval-json-over-transforms", "eval {scene} --data {data} --json {data}/transforms.json", 2, "inside the input"),
+    C("eval-json-over-notes", "eval {scene} --data {data} --json notes.txt", 2, "not a previous JSON result", FILE),
+    C("eval-json-over-folder", "eval {scene} --data {data} --json notes", 2, "not a previous JSON result", NOTES),
+    C("eval-images-user-folder", "eval {scene} --data {data} --images notes --overwrite", 2, "not a neoedit output", NOTES),
+    C("eval-images-in-scene", "eval {scene} --data {data} --images {scene}/img", 2, "inside the input"),
+    C("eval-json-replaces-result", "eval {scene} --data {data} --json m.json", 0, "psnr", write("m.json", {"old": 1}), ("m.json",)),
+    C("eval-ok", "eval {scene} --data {data} --json m.json --images img", 0, "psnr", creates=("m.json", "img")),
+    C("query-json-over-image", "query {scene} mug --json {ws}/notes.txt --views 0", 2, "not a previous JSON result", FILE),
+    C("query-out-user-folder", "query {scene} mug --out notes", 2, "not a neoedit output", NOTES),
+    C("sim-scene-over-user-folder", "sim scene spec.yaml --out notes --overwrite", 2, "not a neoedit output", chain(SPEC, NOTES)),
+    C("sim-scene-over-scene", "sim scene spec.yaml --out {scene} --overwrite", 2, "a neoedit scene", SPEC),
+    C("sim-benchmark-over-file", "sim benchmark --profile small --only removal_1 --out notes.txt", 2, "not a folder", FILE),
+    C("sim-benchmark-scene-over-folder", "sim benchmark --profile small --only removal_1 --out {ws} --overwrite", 2, "not a neoedit output", write("removal_1/x.txt", "mine")),
+    C("sim-benchmark-negative-seed", "sim benchmark --profile small --seed -1 --out b", 2, "--seed"),
+    # 2. intrinsics and poses
+    C("info-negative-focal", "info {data}", 2, "focal length 'fl_x' must be positive", set_frame(fl_x=-46.1)),
+    C("info-zero-focal", "info {data}", 2, "focal length 'fl_y' must be positive", set_frame(fl_y=0)),
+    C("train-zero-focal", "train {data} --out s " + TRAIN, 2, "must be positive", set_frame(fl_x=0)),
+    C("info-nan-focal", "info {data}", 2, "'fl_x' must be a finite number", set_frame(fl_x=float("nan"))),
+    C("info-frame-focal", "info {data}", 2, "frame 3: focal length", set_frame(3, fl_x=-1)),
+    C("info-far-principal-point", "info {data}", 2, "principal point 'cx'", set_frame(cx=1e6)),
+    C("info-fractional-width", "info {data}", 2, "whole number of pixels", set_frame(w=64.5)),
+    C("info-zero-height", "info {data}", 2, "'h' must be a whole number", set_frame(h=0)),
+    C("info-string-focal", "info {data}", 2, "finite number", set_frame(fl_x="46")),
+    C("info-scaled-rotation", "info {data}", 2, "not orthonormal", scale_rotation(3.0)),
+    C("info-mirrored-rotation", "info {data}", 2, "mirror", scale_rotation(-1.0)),
+    C("info-singular-pose", "info {data}", 2, "not invertible", scale_rotation(0.0)),
+    C("info-pose-3x3", "info {data}", 2, "4x4", set_frame(0, transform_matrix=np.eye(3).tolist())),
+    C("info-pose-text", "info {data}", 2, "numeric matrix", set_frame(0, transform_matrix="identity")),
+    C("info-pose-bottom-row", "info {data}", 2, "last row", set_frame(0, transform_matrix=[[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 1, 1]])),
+    C("render-cameras-negative-focal", "render {scene} --cameras cams.json --out r", 2, "must be positive", cameras(fl_x=-5)),
+    # 4. impossible options
+    C("train-negative-steps", "train {data} --out s --max-steps -5", 2, "--max-steps must be at least 1"),
+    C("train-zero-steps", "train {data} --out s --max-steps 0", 2, "--max-steps"),
+    C("train-zero-minutes", "train {data} --out s --max-minutes 0", 2, "--max-minutes"),
+    C("train-nan-lr", "train {data} --out s --lr nan", 2, "--lr must be > 0"),
+    C("train-zero-rays", "train {data} --out s --rays-per-batch 0", 2, "--rays-per-batch"),
+    C("train-negative-eval-views", "train {data} --out s --eval-views -1", 2, "--eval-views"),
+    C("train-zero-hidden", "train {data} --out s --field.hidden-dim 0", 2, "hidden_dim"),
+    C("train-huge-hash", "train {data} --out s --field.hashgrid.log2-hashmap-size 64", 2, "log2_hashmap_size"),
+    C("train-bad-backend", "train {data} --out s --field.hashgrid.backend banana", 2, "backend"),
+    C("train-zero-grid", "train {data} --out s --grid.resolution 0", 2, "resolution"),
+    C("train-zero-samples", "train {data} --out s --render.n-samples 0", 2, "n_samples"),
+    C("train-bad-teacher", "train {data} --out s --language.teacher banana", 2, "--language.teacher"),
+    C("train-missing-clip", "train {data} --out s --language.clip-path /nonexistent/clip", 2, "does not exist"),
+    C("train-resume-nothing-to-do", "train {data} --out {scene} --resume --max-steps 1 --skip-language", 2, "nothing to do"),
+    C("train-not-a-number", "train {data} --out s --max-steps many", 2, ""),
+    # 5. camera models
+    C("render-cameras-banana-model", "render {scene} --cameras cams.json --out r", 2, "camera_model 'BANANA'", cameras(camera_model="BANANA")),
+    C("render-cameras-fisheye", "render {scene} --cameras cams.json --out r", 2, "OPENCV_FISHEYE", cameras(camera_model="OPENCV_FISHEYE")),
+    C("info-equirectangular", "info {data}", 2, "camera_model", set_frame(camera_model="EQUIRECTANGULAR")),
+    C("info-frame-model", "info {data}", 2, "frame 2: camera_model", set_frame(2, camera_model="FISHEYE")),
+    C("info-distortion", "info {data}", 2, "lens distortion", set_frame(k1=0.1)),
+    C("info-distortion-text", "info {data}", 2, "'k1' must be a finite number", set_frame(k1="x")),
+    C("render-cameras-opencv-ok", "render {scene} --cameras cams.json --out r", 0, "wrote 2 views", cameras_frame(camera_model="OPENCV"), ("r/transforms.json",)),
+    # 7. broken weights
+    C("render-nan-weights", "render {scene} --out r", 2, "NaN or infinite", nan_weights),
+    C("eval-nan-weights", "eval {scene} --data {data}", 2, "NaN or infinite", nan_weights),
+    C("remove-nan-weights", "remove {scene} --box mug.json --out v --no-inpaint", 2, "NaN or infinite", chain(MUG, nan_weights)),
+    C("render-truncated-weights", "render {scene} --out r", 2, "cannot read weights", lambda ws: (ws.scene / "field.safetensors").write_bytes(b"\x08\x00")),
+    C("render-missing-weights", "render {scene} --out r", 2, "missing field.safetensors", lambda ws: (ws.scene / "field.safetensors").unlink()),
+    # 8. no tracebacks
+    C("render-device-banana", "render {scene} --out r --device banana", 2, "not a device"),
+    C("train-device-banana", "train {data} --out s --device banana", 2, "not a device"),
+    C("eval-device-banana", "eval {scene} --data {data} --device banana", 2, "not a device"),
+    C("remove-device-cuda-7", "remove {scene} --box mug.json --out v --device cuda:7", 2, "--device cuda:7", MUG),
+    C("info-pickled-depth", "info {data}", 2, "cannot read depth", pickled_depth),
+    C("info-depth-wrong-size", "info {data}", 2, "depth, mask or instance image", chain(write("data/depth/small.npy", np.ones((4, 4))), set_frame(1, depth_file_path="depth/small.npy"))),
+    C("info-depth-text", "info {data}", 2, "cannot read depth", chain(write("data/depth/t.npy", b"not numpy"), set_frame(1, depth_file_path="depth/t.npy"))),
+    C("info-binary-transforms", "info {data}", 2, "not valid JSON", write("data/transforms.json", b"\xff\xfe\x00garbage")),
+    C("info-deep-transforms", "info {data}", 2, "not valid JSON", write("data/transforms.json", "[" * 100_000)),
+    C("info-frames-not-list", "info {data}", 2, "non-empty 'frames' list", set_frame(frames={"a": 1})),
+    C("info-file-path-number", "info {data}", 2, "'file_path' must be a non-empty path", set_frame(0, file_path=7)),
+    C("info-missing-image", "info {data}", 2, "image not found", set_frame(0, file_path="images/nope.png")),
+    C("info-background-text", "info {data}", 2, "background_color", set_frame(background_color="red")),
+    C("info-flat-scene-box", "info {data}", 2, "scene_aabb", set_frame(scene_aabb=[[0, 0, 0], [1, 1, 0]])),
+    C("info-split-not-list", "info {data}", 2, "'train_filenames' must be a list", set_frame(train_filenames=3)),
+    C("info-bad-objects", "info {data}", 2, "'objects' must be a list", write("data/objects.json", {"instances": [], "objects": [1]})),
+    C("info-depth-unit-zero", "info {data}", 2, "depth_unit_scale_factor", set_frame(depth_unit_scale_factor=0)),
+    C("info-markup-in-path", "info '{ws}/[/]nope'", 2, "dataset not found"),
+    C("info-missing", "info {ws}/nope", 2, "dataset not found"),
+    # 9. renders: bounded, inside OUT
+    C("render-too-many-frames", "render {scene} --views spiral --n-frames 100000 --out r", 2, "--n-frames must be between 1 and"),
+    C("render-zero-frames", "render {scene} --views spiral --n-frames 0 --out r", 2, "--n-frames"),
+    C("render-cameras-escape", "render {scene} --cameras cams.json --out r", 2, "stay inside", cameras_frame(file_path="../../escaped.png")),
+    C("render-cameras-absolute", "render {scene} --cameras cams.json --out r", 2, "stay inside", cameras_frame(file_path="/tmp/escaped.png")),
+    C("render-cameras-duplicate", "render {scene} --cameras cams.json --out r", 2, "share a file_path", lambda ws: cameras_frame(file_path=ws.transforms()["frames"][1]["file_path"])(ws)),
+    C("render-cameras-missing", "render {scene} --cameras nope.json --out r", 2, "file not found"),
+    # 10. removal boxes
+    C("remove-box-far-away", "remove {scene} --box far.json --out v --no-inpaint", 2, "does not intersect the scene box", FAR),
+    C("remove-box-already-cut", "remove {scene} --box mug.json --out v --no-inpaint", 2, "holds nothing", chain(MUG, set_scene(cut_boxes=[{"center": [0.076, -0.098, 0.046], "size": [0.3, 0.3, 0.3], "yaw_deg": 0}]))),
+    C("remove-box-malformed", "remove {scene} --box bad.json --out v", 2, "bad box", write("bad.json", {"center": [0, 0]})),
+    C("remove-box-negative-size", "remove {scene} --box bad.json --out v", 2, "size must be positive", write("bad.json", {"center": [0, 0, 0], "size": [-1, 1, 1]})),
+    C("remove-box-missing", "remove {scene} --box nope.json --out v", 2, "box file not found"),
+    C("remove-prompt-and-box", "remove {scene} mug --box mug.json --out v", 2, "not both", MUG),
+    # 11. scene.json
+    C("render-flat-aabb", "render {scene} --out r", 2, "aabb_m", lambda ws: set_scene(aabb_m=[ws.scene_json()["aabb_m"][0]] * 2)(ws)),
+    C("render-nan-aabb", "render {scene} --out r", 2, "aabb_m", set_scene(aabb_m=[[0, 0, 0], [1, 1, float("nan")]])),
+    C("render-moved-aabb", "render {scene} --out r", 2, "not the box the field was trained on", set_scene(aabb_m=[[0, 0, 0], [1, 1, 1]])),
+    C("render-bad-background", "render {scene} --out r", 2, "background_rgb", set_scene(background_rgb=[2, 0, 0])),
+    C("render-zero-samples-json", "render {scene} --out r", 2, "render.n_samples", lambda ws: set_scene(render={**ws.scene_json()["render"], "n_samples": 0})(ws)),
+    C("render-config-mismatch", "render {scene} --out r", 2, "do not match the scene config", lambda ws: set_scene(field={**ws.scene_json()["field"], "hidden_dim": 9})(ws)),
+    C("render-grid-mismatch", "render {scene} --out r", 2, "grid.density", lambda ws: set_scene(grid={**ws.scene_json()["grid"], "resolution": 1000})(ws)),
+    C("render-bad-cut-box", "render {scene} --out r", 2, "cut_boxes: bad box", set_scene(cut_boxes=[{"center": 1}])),
+    C("render-wrong-format", "render {scene} --out r", 2, "unsupported scene format", set_scene(format="neoedit.scene/99")),
+    C("render-truncated-json", "render {scene} --out r", 2, "not valid JSON", write("scene/scene.json", '{"format": ')),
+    C("render-not-a-scene", "render {data} --out r", 2, "not a neoedit scene"),
+    C("render-missing-scene", "render {ws}/nope --out r", 2, "scene not found"),
+    C("eval-missing-data", "eval {scene} --data {ws}/nope", 2, "dataset not found"),
+    # 13. long prompts are shortened in messages
+    C("remove-long-prompt", f"remove {{scene}} {LONG} --out v", 2, "no language field"),
+    C("query-long-prompt", f"query {{scene}} {LONG} --views 0", 2, "no language field"),
+    C("query-empty-prompt", "query {scene} ' ; '", 2, "empty prompt"),
+    C("query-negative-views", "query {scene} mug --views -1", 2, "--views"),
+]
+# fmt: on
+
+
+@pytest.mark.parametrize("case", CASES, ids=[c.id for c in CASES])
+def test_case(case: C, golden, tmp_path: Path, capsys, monkeypatch) -> None:
+    ws = make_workspace(tmp_path / "ws", *golden)
+    if case.setup is not None:
+        case.setup(ws)
+    monkeypatch.chdir(ws.root)
+    before = snapshot(ws.root)
+    argv = [a.format(data=ws.data, scene=ws.scene, ws=ws.root) for a in shlex.split(case.argv)]
+    res = run_neo(argv, capsys)
+    assert res.traceback is None, res.traceback
+    assert res.code == case.code, f"exit {res.code}: {res.err[:500]}"
+    assert len(res.err) < 600, f"message too long ({len(res.err)} chars)"
+    if case.code == 2 and case.fragment:
+        assert res.err.count("error:") == 1 and case.fragment in res.err, res.err
+    if case.code != 0:
+        assert changes(before, snapshot(ws.root)) == [], "a refused command wrote or deleted"
+    else:
+        assert case.fragment in res.out.replace("\n", " ") + res.err
+        assert all((ws.root / p).exists() for p in case.creates)
+        assert not any((ws.root / p).exists() for p in case.gone)
+    assert temporaries(ws.root) == []
+
+
+def test_every_defect_has_cases() -> None:
+    """Defects 1-13 of issue 12 each have at least one line in the table (3, 6 and 12 are
+    tested below and in test_interrupted_writes.py: they need a broken disk or a kill)."""
+    ids = " ".join(c.id for c in CASES)
+    for word in ("out-is-data", "focal", "steps", "model", "nan-weights", "banana", "pickled",
+                 "frames", "far-away", "flat-aabb", "long-prompt"):  # fmt: skip
+        assert word in ids, word

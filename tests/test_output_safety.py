@@ -1,0 +1,211 @@
+"""Issue 12, the cases a table cannot hold: a disk that refuses writes, unreadable files,
+the user's umask, leftovers of crashed runs and very long prompts."""
+
+# ruff: noqa: F811 (the golden fixture is imported and used as an argument)
+from __future__ import annotations
+
+import errno
+import os
+import shutil
+from pathlib import Path
+
+import pytest
+
+from neoedit.language.localize import NoMatch
+from neoedit.utils import io
+from neoedit.utils.io import atomic_directory, atomic_write_json, clean_stale_temporaries
+from tests.conftest import tiny_train
+from tests.safety_support import (
+    TINY_TRAIN_ARGS,
+    changes,
+    golden,  # noqa: F401 (a fixture)
+    make_workspace,
+    run_neo,
+    snapshot,
+    temporaries,
+)
+
+IS_ROOT = hasattr(os, "geteuid") and os.geteuid() == 0
+
+
+def read_only_fs(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every new file fails as on a read-only file system (root ignores chmod)."""
+
+    def refuse(*args, **kwargs):
+        raise OSError(errno.EROFS, "Read-only file system")
+
+    monkeypatch.setattr(io.tempfile, "mkstemp", refuse)
+
+
+def test_unwritable_out_is_refused_before_training(golden, tmp_path, capsys, monkeypatch):
+    ws = make_workspace(tmp_path / "ws", *golden)
+    before = snapshot(ws.root)
+    read_only_fs(monkeypatch)
+    trained = []
+    monkeypatch.setattr("neoedit.training.trainer.train", lambda *a, **k: trained.append(1))
+    res = run_neo(["train", ws.data, "--out", ws.path("s"), *TINY_TRAIN_ARGS], capsys)
+    assert res.code == 2 and "cannot write to" in res.err and "Read-only" in res.err
+    assert trained == [] and changes(before, snapshot(ws.root)) == []
+
+
+@pytest.mark.parametrize("verb", ["render", "eval", "sim"])
+def test_unwritable_out_other_verbs(verb, golden, tmp_path, capsys, monkeypatch):
+    ws = make_workspace(tmp_path / "ws", *golden)
+    spec = ws.write(
+        "spec.yaml", "name: s\nobjects: [{name: m, urdf: 'pybullet_data:objects/mug.urdf'}]\n"
+    )
+    argv = {
+        "render": ["render", ws.scene, "--out", ws.path("r")],
+        "eval": ["eval", ws.scene, "--data", ws.data, "--json", ws.path("m.json")],
+        "sim": ["sim", "scene", spec, "--out", ws.path("sim")],
+    }[verb]
+    read_only_fs(monkeypatch)
+    res = run_neo(argv, capsys)
+    assert res.traceback is None and res.code == 2 and "cannot write to" in res.err
+
+
+@pytest.mark.skipif(IS_ROOT, reason="root ignores file permissions")
+def test_read_only_folder_for_real(golden, tmp_path, capsys):
+    ws = make_workspace(tmp_path / "ws", *golden)
+    locked = ws.path("locked")
+    locked.mkdir()
+    locked.chmod(0o555)
+    try:
+        res = run_neo(["render", ws.scene, "--out", locked / "r"], capsys)
+        assert res.code == 2 and "cannot write to" in res.err
+    finally:
+        locked.chmod(0o755)
+
+
+def test_unreadable_dataset_is_a_message(golden, tmp_path, capsys, monkeypatch):
+    ws = make_workspace(tmp_path / "ws", *golden)
+    real = Path.read_text
+
+    def deny(self, *args, **kwargs):
+        if self.name == "transforms.json":
+            raise PermissionError(errno.EACCES, "Permission denied", str(self))
+        return real(self, *args, **kwargs)
+
+    monkeypatch.setattr(Path, "read_text", deny)
+    res = run_neo(["info", ws.data], capsys)
+    assert res.traceback is None and res.code == 2 and "Permission denied" in res.err
+
+
+def test_unreadable_folder_is_a_message(golden, tmp_path, capsys, monkeypatch):
+    ws = make_workspace(tmp_path / "ws", *golden)
+    real = Path.is_file
+
+    def deny(self):
+        if self.parent == ws.data:
+            raise PermissionError(errno.EACCES, "Permission denied", str(self))
+        return real(self)
+
+    monkeypatch.setattr(Path, "is_file", deny)
+    res = run_neo(["info", ws.data], capsys)
+    assert res.traceback is None and res.code == 2 and "Permission denied" in res.err
+
+
+@pytest.mark.skipif(IS_ROOT, reason="root ignores file permissions")
+def test_unreadable_image_for_real(golden, tmp_path, capsys):
+    ws = make_workspace(tmp_path / "ws", *golden)
+    image = next((ws.data / "images").iterdir())
+    image.chmod(0)
+    res = run_neo(["info", ws.data], capsys)
+    assert res.code == 2 and "error:" in res.err
+
+
+@pytest.mark.parametrize("mask", [0o022, 0o077, 0o002])
+def test_outputs_follow_the_umask(mask, golden, tmp_path, capsys):
+    ws = make_workspace(tmp_path / "ws", *golden)
+    old = os.umask(mask)
+    try:
+        res = run_neo(["render", ws.scene, "--out", ws.path("r"), "--views", "eval"], capsys)
+        tiny_train(ws.data, ws.path("s"), steps=1)
+    finally:
+        os.umask(old)
+    assert res.code == 0
+    for out in (ws.path("r"), ws.path("s")):
+        for p in [out, *out.rglob("*")]:
+            want = (0o777 if p.is_dir() else 0o666) & ~mask
+            assert p.stat().st_mode & 0o777 == want, (p, oct(p.stat().st_mode))
+
+
+def test_legacy_leftovers_are_removed_by_the_next_run(golden, tmp_path, capsys):
+    """What the old writer left after a kill (a hidden ``.NAME.XXXXXXXX.partial`` folder, an
+    ``.old`` backup beside a complete scene, a ``.tmp`` file) goes at the next save."""
+    ws = make_workspace(tmp_path / "ws", *golden)
+    out = ws.path("r")
+    for name in (".r.k2j4_x9q.partial", ".r.ab3de8fg.old"):
+        (ws.root / name / "images").mkdir(parents=True)
+        (ws.root / name / "images" / "x.png").write_bytes(b"x" * 1000)
+    (ws.root / ".r.qwertyui.tmp").write_bytes(b"half")
+    res = run_neo(["render", ws.scene, "--out", out, "--views", "eval"], capsys)
+    assert res.code == 0 and temporaries(ws.root) == []
+    assert not any(p.name.startswith(".r.") for p in ws.root.iterdir())
+
+
+def test_backup_of_a_crashed_swap_is_restored(tmp_path):
+    """A crash between the two renames of the fallback swap leaves the previous version
+    only under its backup name: the next run puts it back instead of deleting it."""
+    final = tmp_path / "r"
+    with atomic_directory(final, kind="render") as tmp:
+        (tmp / "a.txt").write_text("v1")
+    backup = io._temp_path(final, "old")
+    os.replace(final, backup)  # the state right after a kill between the renames
+    pid_dead = backup.with_name(backup.name.replace(f"-{os.getpid()}-", "-999999999-"))
+    os.replace(backup, pid_dead)
+    assert clean_stale_temporaries(tmp_path) == [pid_dead]
+    assert (final / "a.txt").read_text() == "v1" and temporaries(tmp_path) == []
+
+
+def test_a_running_writer_is_left_alone(tmp_path):
+    """A temporary whose process is alive (another neo writing there) is not touched."""
+    busy = tmp_path / f".r.neoedit-{os.getppid()}-0123abcd.partial"
+    busy.mkdir()
+    assert clean_stale_temporaries(tmp_path) == [] and busy.exists()
+
+
+def test_json_is_replaced_only_when_it_was_json(tmp_path):
+    result = tmp_path / "m.json"
+    atomic_write_json(result, {"psnr": 1})
+    io.check_writable_output(result, [], "json", overwrite=True)  # an earlier result: fine
+    result.write_bytes(b"\x89PNG")
+    with pytest.raises(io.NeoError, match="not a previous JSON result"):
+        io.check_writable_output(result, [], "json", overwrite=True)
+
+
+def test_replacing_needs_a_neoedit_output_even_in_the_api(tmp_path):
+    user = tmp_path / "photos"
+    user.mkdir()
+    (user / "cat.jpg").write_bytes(b"cat")
+    with pytest.raises(io.NeoError, match="not a neoedit output"):
+        with atomic_directory(user, overwrite=True, kind="scene"):
+            pass
+    assert (user / "cat.jpg").read_bytes() == b"cat" and temporaries(tmp_path) == []
+
+
+def test_long_prompt_is_shortened_in_messages():
+    prompt = "red mug " * 1250
+    message = str(NoMatch(prompt, 0.1, 0.5))
+    assert len(message) < 200 and "10000 characters" in message
+
+
+def test_markup_in_a_message_is_printed_as_text(tmp_path, capsys):
+    res = run_neo(["info", tmp_path / "[bold]x[/]"], capsys)
+    assert res.code == 2 and "[bold]x[/]" in res.err
+
+
+def test_input_scene_is_untouched_by_every_refusal_and_success(golden, tmp_path, capsys):
+    """The input scene stays byte-identical through renders, evaluations and edits."""
+    ws = make_workspace(tmp_path / "ws", *golden)
+    shutil.copy(ws.scene / "scene.json", ws.path("scene.json.bak"))
+    before = snapshot(ws.scene)
+    ws.write("mug.json", {"center": [0.076, -0.098, 0.046], "size": [0.07, 0.1, 0.09]})
+    for argv in (
+        ["render", ws.scene, "--out", ws.path("r")],
+        ["eval", ws.scene, "--data", ws.data, "--json", ws.path("m.json")],
+        ["remove", ws.scene, "--box", ws.path("mug.json"), "--out", ws.path("v"), "--no-inpaint"],
+        ["remove", ws.scene, "--box", ws.path("mug.json"), "--out", ws.scene, "--overwrite"],
+    ):
+        assert run_neo(argv, capsys).traceback is None
+    assert changes(before, snapshot(ws.scene)) == []
