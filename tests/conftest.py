@@ -18,7 +18,7 @@ from neoedit.sim.suite import benchmark_scenes
 from neoedit.training.trainer import TrainConfig, train
 
 # property tests draw the same examples on every run (CI must not fail by chance)
-settings.register_profile("deterministic", derandomize=True, database=None)
+settings.register_profile("deterministic", derandomize=True, database=None, deadline=None)
 settings.load_profile("deterministic")
 
 TINY_SCAN = ScanSpec(width=64, height=48, n_train=10, n_eval=3)

@@ -37,7 +37,7 @@ from neoedit.edit.refine import RefineConfig
 from neoedit.edit.remove import RemoveConfig, check_boxes_in_scene, inpaint_removal, working_boxes
 from neoedit.edit.views import concat_cameras, virtual_cameras
 from neoedit.errors import NeoError
-from neoedit.fields.composed import ComposedField, EmptyField, TransformedField
+from neoedit.fields.composed import ComposedField, EmptyField, MaskedField, TransformedField
 from neoedit.fields.patched import PatchedField, edit_region
 from neoedit.fields.radiance import Field, RadianceField
 from neoedit.geometry import OrientedBox, is_rigid
@@ -109,6 +109,8 @@ def check_motions(scene: Scene, motions: list[Motion]) -> None:
                 "the transform must be a finite rigid motion (orthonormal rotation, det +1, "
                 f"last row 0 0 0 1); got {np.round(np.asarray(m.transform), 4).tolist()}"
             )
+        if np.allclose(m.transform, np.eye(4), atol=1e-6):
+            raise NeoError("the motion is the identity: nothing would move")
         rot = np.asarray(m.transform)[:3, :3]
         if abs(rot[2, 2] - 1.0) > 1e-3:
             raise NeoError(
@@ -190,12 +192,13 @@ def _teacher(
     cfg: MoveConfig,
     inpainter: Inpainter | None,
 ) -> tuple[Field, dict[str, float]]:
-    """The composed teacher S' and the timings of building it."""
-    moved = [
-        ([g], TransformedField(parent.field, tf)) for g, tf in zip(targets, transforms, strict=True)
-    ]
+    """The composed teacher S' (every part as it renders, its grid applied) and the
+    timings of building it."""
+    moving = MaskedField(parent.field, parent.grid.is_occupied)
+    moved = [([g], TransformedField(moving, tf)) for g, tf in zip(targets, transforms, strict=True)]
     if cfg.method == "seal3d":
-        return ComposedField(parent.field, [(sources, EmptyField(parent.field.aabb)), *moved]), {}
+        empty = EmptyField(parent.field.aabb)
+        return ComposedField(moving, [(sources, empty), *moved]), {}
     removed = Scene(
         PatchedField(copy.deepcopy(_base(parent.field))),
         copy.deepcopy(parent.grid),
@@ -210,7 +213,10 @@ def _teacher(
     remove_cfg = dataclasses.replace(cfg.remove, virtual_views=cfg.virtual_views)
     timings = inpaint_removal(removed, sources, sources, remove_cfg, inpainter)
     removed.field.requires_grad_(False)
-    return ComposedField(removed.field, moved), {f"inpaint_{k}": v for k, v in timings.items()}
+    region = [edit_region(s, remove_cfg.refine.below_m) for s in sources]
+    refresh_grid(removed.grid, removed.field.density, cells_in_boxes(removed.grid, region))
+    base = MaskedField(removed.field, removed.grid.is_occupied)
+    return ComposedField(base, moved), {f"inpaint_{k}": v for k, v in timings.items()}
 
 
 def _base(field_: Field) -> RadianceField:

@@ -8,7 +8,7 @@ Nothing here is trained: composing is free, so a composite is also the instant p
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 
 import numpy as np
 import torch
@@ -107,6 +107,30 @@ class ComposedField(nn.Module):
             sigma = sigma.index_put((idx,), s)
             rgb = rgb.index_put((idx,), c)
         return sigma, rgb
+
+
+class MaskedField(nn.Module):
+    """``field`` as it renders: zero density where ``occupied(points)`` (an occupancy grid's
+    test) is False. A field holds arbitrary density in space its training never sampled,
+    which the grid hides at render time; a teacher must hide it too."""
+
+    def __init__(self, field: Field, occupied: Callable[[torch.Tensor], torch.Tensor]):
+        super().__init__()
+        self.field = field
+        self.occupied = occupied
+
+    @property
+    def aabb(self) -> torch.Tensor:
+        return self.field.aabb
+
+    def density(self, points: torch.Tensor) -> torch.Tensor:
+        return self.field.density(points) * self.occupied(points)
+
+    def forward(
+        self, points: torch.Tensor, directions: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        sigma, rgb = self.field(points, directions)
+        return sigma * self.occupied(points), rgb
 
 
 class EmptyField(nn.Module):

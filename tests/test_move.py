@@ -1,0 +1,294 @@
+"""`neo move`: transformed and composed fields, distillation, the language update, versions."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from conftest import TINY_FIELD, tiny_train
+from hypothesis import given
+from hypothesis import strategies as st
+from test_edit import tree_digest
+
+from neoedit.cameras.rays import CameraTensors
+from neoedit.cli import main
+from neoedit.data import load_scene_data
+from neoedit.edit.language_update import pushed_out_of_footprint
+from neoedit.edit.masks import project_box_mask
+from neoedit.edit.relocate import Motion, MoveConfig, move
+from neoedit.fields.composed import ComposedField, TransformedField, moved_field
+from neoedit.fields.patched import PatchedField
+from neoedit.fields.radiance import RadianceField
+from neoedit.geometry import OrientedBox, motion_about, points_in_box
+from neoedit.geometry.box import box_iou_3d
+from neoedit.geometry.transforms import make_transform
+from neoedit.language.localize import QueryConfig, query_scene
+from neoedit.language.text import load_text_encoder
+from neoedit.language.training import LanguageTrainConfig
+from neoedit.scene import load_scene
+
+AABB = torch.tensor([[-0.5, -0.5, -0.2], [0.5, 0.5, 0.4]])
+
+
+def _rotation(a: float, b: float, c: float) -> np.ndarray:
+    """A proper rotation from three angles (z-y-x)."""
+    ca, sa, cb, sb, cc, sc = np.cos(a), np.sin(a), np.cos(b), np.sin(b), np.cos(c), np.sin(c)
+    rz = np.array([[ca, -sa, 0], [sa, ca, 0], [0, 0, 1]])
+    ry = np.array([[cb, 0, sb], [0, 1, 0], [-sb, 0, cb]])
+    rx = np.array([[1, 0, 0], [0, cc, -sc], [0, sc, cc]])
+    return rz @ ry @ rx
+
+
+@given(
+    st.floats(-3.1, 3.1),
+    st.floats(-1.5, 1.5),
+    st.floats(-3.1, 3.1),
+    st.tuples(*[st.floats(-0.2, 0.2)] * 3),
+    st.integers(0, 1000),
+)
+def test_transformed_field_answers_at_the_inverse_motion(a, b, c, t, seed):
+    base = RadianceField(TINY_FIELD, AABB, seed=3)
+    transform = make_transform(_rotation(a, b, c), np.asarray(t))
+    moved = TransformedField(base, transform)
+    gen = torch.Generator().manual_seed(seed)
+    x = (torch.rand(64, 3, generator=gen) - 0.5) * 0.6
+    d = torch.nn.functional.normalize(torch.randn(64, 3, generator=gen), dim=-1)
+    # brute force, in float64: x_src = R^T (x - t), d_src = R^T d
+    rot = torch.as_tensor(transform[:3, :3])
+    x_src = ((x.double() - torch.as_tensor(transform[:3, 3])) @ rot).float()
+    d_src = (d.double() @ rot).float()
+    with torch.no_grad():
+        sigma, rgb = moved(x, d)
+        sigma_ref, rgb_ref = base(x_src, d_src)
+        assert torch.allclose(moved.density(x), base.density(x_src), rtol=1e-3, atol=1e-3)
+    assert torch.allclose(sigma, sigma_ref, rtol=1e-3, atol=1e-3)
+    assert torch.allclose(rgb, rgb_ref, atol=1e-4)
+
+
+class _Constant(torch.nn.Module):
+    def __init__(self, value: float):
+        super().__init__()
+        self.value = value
+        self.aabb = AABB
+
+    def density(self, points):
+        return torch.full((len(points),), self.value)
+
+    def forward(self, points, directions):
+        return self.density(points), torch.full((len(points), 3), self.value)
+
+
+def test_composite_precedence_target_over_source_over_base():
+    source = OrientedBox((0.0, 0.0, 0.05), (0.1, 0.1, 0.1), 0.0)
+    target = OrientedBox((0.05, 0.0, 0.05), (0.1, 0.1, 0.1), 30.0)  # overlaps the source
+    comp = ComposedField(_Constant(1.0), [([source], _Constant(2.0)), ([target], _Constant(3.0))])
+    pts = torch.tensor([[0.3, 0.3, 0.3], [-0.04, 0.0, 0.05], [0.03, 0.0, 0.05], [0.09, 0.0, 0.05]])
+    assert comp.density(pts).tolist() == [1.0, 2.0, 3.0, 3.0]
+    sigma, rgb = comp(pts, torch.zeros_like(pts))
+    assert sigma.tolist() == [1.0, 2.0, 3.0, 3.0] and rgb[:, 0].tolist() == [1.0, 2.0, 3.0, 3.0]
+    # the move composite: nothing left in the source, the moved field in the target
+    t = motion_about(np.array(source.center_m), np.array([0.2, 0.0, 0.0]), 0.0)
+    moved = moved_field(_Constant(1.0), _Constant(5.0), [source], [source.transformed(t)], t)
+    out = moved.density(torch.tensor([[0.0, 0.0, 0.05], [0.2, 0.0, 0.05], [0.4, 0.4, 0.3]]))
+    assert out.tolist() == [0.0, 5.0, 1.0]
+
+
+def test_points_pushed_out_of_a_box_land_just_outside_its_footprint():
+    box = OrientedBox((0.1, -0.1, 0.05), (0.08, 0.12, 0.1), 35.0)
+    gen = torch.Generator().manual_seed(0)
+    local = (torch.rand(500, 3, generator=gen) - 0.5) * torch.tensor(box.size_m) * 0.99
+    pts = local @ torch.tensor(box.rotation, dtype=torch.float32).T + torch.tensor(box.center_m)
+    pts = pts.float()
+    out = pushed_out_of_footprint(pts, box, 0.02)
+    assert not points_in_box(out, box).any()
+    assert points_in_box(out, box.grown(0.0201)).all()
+    assert torch.allclose(out[:, 2], pts[:, 2])  # height kept
+
+
+@pytest.fixture(scope="module")
+def move_scene(sim_root: Path, tmp_path_factory) -> Path:
+    """The tiny pick-and-place pre scan with a label-teacher language field."""
+    out = tmp_path_factory.mktemp("move") / "pre"
+    tiny_train(
+        sim_root / "pick_place_1" / "pre",
+        out,
+        steps=400,
+        language=LanguageTrainConfig(rays=16384, steps=150, batch=2048),
+    )
+    return out
+
+
+FAST = [
+    "--edit.remove.refine.steps", "30", "--edit.remove.refine.rounds", "1",
+    "--edit.remove.views.turns", "1", "--edit.language.steps", "60",
+]  # fmt: skip
+# the tiny 64x48 scan gives a sparse cloud: cluster with a wider radius and fewer neighbours
+SPARSE = QueryConfig(min_cluster_points=10, min_samples=4, eps_m=0.03)
+SPARSE_ARGS = [
+    "--query.min-cluster-points",
+    "10",
+    "--query.min-samples",
+    "4",
+    "--query.eps-m",
+    "0.03",
+]
+
+
+def _action(sim_root: Path) -> dict:
+    return json.loads((sim_root / "pick_place_1" / "scene.json").read_text())["actions"][0]
+
+
+def _mean_density(scene, box: OrientedBox, n: int = 4000) -> float:
+    """Mean density that renders (cells the occupancy grid marches) in the inner 60 % of
+    the box (a barely trained field holds arbitrary density in space it never sampled)."""
+    gen = torch.Generator().manual_seed(0)
+    inner = OrientedBox(box.center_m, tuple(0.6 * s for s in box.size_m), box.yaw_deg)
+    u = (torch.rand(n, 3, generator=gen) - 0.5) * torch.tensor(inner.size_m)
+    pts = (u @ torch.tensor(inner.rotation, dtype=torch.float32).T).float()
+    pts = pts + torch.tensor(inner.center_m, dtype=torch.float32)
+    with torch.no_grad():
+        return float((scene.field.density(pts) * scene.grid.is_occupied(pts)).mean())
+
+
+def test_move_end_to_end(move_scene: Path, sim_root: Path, tmp_path: Path):
+    action = _action(sim_root)
+    source = OrientedBox.from_dict(action["source_box"])
+    target = OrientedBox.from_dict(action["target_box"])
+    (tmp_path / "t.json").write_text(json.dumps(action))  # {"transform_world": 4x4, ...}
+    transform = np.asarray(action["transform_world"])
+    before = tree_digest(move_scene)
+    parent = load_scene(move_scene)
+    out = tmp_path / "moved"
+    args = ["move", str(move_scene), action["object"], "--transform", str(tmp_path / "t.json")]
+    assert main([*args, "--out", str(out), *FAST, *SPARSE_ARGS]) == 0
+    assert tree_digest(move_scene) == before  # the input is untouched, byte for byte
+    moved = load_scene(out)
+    # same structure as the input: one radiance field (no patches), one language field
+    assert isinstance(moved.field, RadianceField) and not moved.meta.patches
+    assert moved.meta.parent == parent.meta.version_id and moved.meta.edits[-1]["type"] == "move"
+    # density left the source box
+    assert _mean_density(parent, source) > 5 * _mean_density(moved, source)
+    # the target box now renders what the composite (the teacher without inpainting) shows
+    # there, and the rest of the scene renders as before
+    motion = Motion(OrientedBox.from_dict(moved.meta.edits[-1]["boxes"][0]), transform)
+    preview = move(parent, [motion], MoveConfig(preview=True))
+    data = load_scene_data(sim_root / "pick_place_1" / "pre")
+    cams = CameraTensors(data.cameras)
+    for view in (0, len(data) // 2):
+        ra, rb, rp = (
+            s.render_image(cams, view, data.height, data.width)["rgb"]
+            for s in (parent, moved, preview)
+        )
+        moved_box = OrientedBox.from_dict(moved.meta.edits[-1]["target_boxes"][0])
+        into = torch.as_tensor(project_box_mask(data.cameras, view, moved_box))
+        if into.sum() > 20:
+            err_moved = float((rb - rp).abs()[into].mean())
+            assert err_moved < 0.6 * float((ra - rp).abs()[into].mean())
+        far = np.ones((data.height, data.width), bool)
+        for b in (source, target):
+            far &= ~project_box_mask(data.cameras, view, b.grown(0.03))
+        diff = (ra - rb).abs().mean(-1)[torch.as_tensor(far)]
+        assert float(diff.mean()) < 0.02, float(diff.mean())
+    # the language field followed: the object is found at its new place, not at the old one
+    text = load_text_encoder(moved.meta.language.text)
+    found = query_scene(moved, action["object"], text, SPARSE).box
+    # (the tiny 64x48 scan's boxes are loose: the IoU criterion is measured by the benchmark)
+    centre = np.asarray(found.center_m)
+    assert np.linalg.norm(centre[:2] - np.asarray(target.center_m)[:2]) < 0.04
+    assert np.linalg.norm(centre[:2] - np.asarray(source.center_m)[:2]) > 0.1
+    # and none of the query cloud's points at the old place are the object's any more
+    old = torch.as_tensor(source.contains(moved.surface_points_m.numpy()))
+    feats = moved.language.language(moved.surface_points_m[old])
+    mug = text.encode([action["object"]])[0]
+    table = text.encode(["table"])[0]
+    assert float((feats @ mug > feats @ table).float().mean()) < 0.2
+
+
+def test_moved_version_is_self_contained_and_moves_again(
+    move_scene: Path, sim_root: Path, tmp_path: Path
+):
+    # a copy of the scene whose dataset is gone still renders and can be edited again
+    data_copy = tmp_path / "data"
+    shutil.copytree(sim_root / "pick_place_1" / "pre", data_copy)
+    scene_copy = tmp_path / "scene"
+    shutil.copytree(move_scene, scene_copy)
+    meta = json.loads((scene_copy / "scene.json").read_text())
+    meta["data_path"] = str(data_copy)
+    (scene_copy / "scene.json").write_text(json.dumps(meta))
+    shutil.rmtree(data_copy)
+    box = json.dumps(_action(sim_root)["source_box"])
+    (tmp_path / "box.json").write_text(box)
+    preview = tmp_path / "preview"
+    cmd = ["move", str(scene_copy), "--box", str(tmp_path / "box.json"), "--translate"]
+    assert main([*cmd, "0.1", "0.05", "0", "--yaw", "30", "--out", str(preview), "--preview"]) == 0
+    p = load_scene(preview)
+    assert p.meta.moves and p.meta.edits[-1]["method"] == "preview"
+    assert main(["render", str(preview), "--views", "eval", "--out", str(tmp_path / "r")]) == 0
+    assert len(list((tmp_path / "r" / "images").glob("*.png"))) >= 1
+    # the preview composes at render time: the target box now holds the object
+    moved_box = OrientedBox.from_dict(p.meta.moves[0]["target"])
+    field_, _ = p.renderable()
+    with torch.no_grad():
+        c = torch.tensor([moved_box.center_m], dtype=torch.float32)
+        assert float(field_.density(c)) >= 0.0
+    # a full move of the moved object again (a chain), from the preview's parent copy
+    again = tmp_path / "again"
+    assert main([*cmd, "-0.05", "0", "0", "--out", str(again), *FAST]) == 0
+    assert isinstance(load_scene(again).field, RadianceField)
+
+
+def test_move_refuses_bad_motions(move_scene: Path, sim_root: Path, tmp_path: Path, capsys):
+    (tmp_path / "box.json").write_text(json.dumps(_action(sim_root)["source_box"]))
+    base = ["move", str(move_scene), "--box", str(tmp_path / "box.json"), "--out"]
+    cases = {
+        "scaled.json": ([[2, 0, 0, 0], [0, 2, 0, 0], [0, 0, 2, 0], [0, 0, 0, 1]], "rigid"),
+        "nan.json": ([[1, 0, 0, float("nan")], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]], "rigid"),
+        "far.json": ([[1, 0, 0, 50.0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]], "scene box"),
+        "tilt.json": (make_transform(_rotation(0, 0.5, 0), np.zeros(3)).tolist(), "upright"),
+        "shape.json": ([[1, 0, 0], [0, 1, 0]], "4x4"),
+    }
+    for name, (matrix, fragment) in cases.items():
+        (tmp_path / name).write_text(json.dumps(matrix))
+        out = tmp_path / f"out_{name}"
+        assert main([*base, str(out), "--transform", str(tmp_path / name)]) == 2, name
+        assert fragment in capsys.readouterr().err, name
+        assert not out.exists()
+    assert main([*base, str(tmp_path / "o"), "--translate", "0", "0", "0"]) == 2
+    assert "identity" in capsys.readouterr().err
+    assert main([*base, str(tmp_path / "o")]) == 2  # no motion at all
+    assert "say where to" in capsys.readouterr().err
+    both = [*base, str(tmp_path / "o"), "--translate", "0.1", "0", "0", "--transform", "x"]
+    assert main(both) == 2
+
+
+def test_removal_updates_language_and_keeps_a_single_patch(
+    move_scene: Path, sim_root: Path, tmp_path: Path
+):
+    action = _action(sim_root)
+    out = tmp_path / "removed"
+    args = ["remove", str(move_scene), action["object"], "--out", str(out), *SPARSE_ARGS]
+    assert main([*args, "--steps", "30", "--rounds", "1", "--turns", "1"]) == 0
+    edited = load_scene(out)
+    assert isinstance(edited.field, PatchedField) and len(edited.meta.patches) == 1
+    text = load_text_encoder(edited.meta.language.text)
+    from neoedit.language.localize import NoMatch
+
+    source = OrientedBox.from_dict(action["source_box"])
+    try:
+        found = query_scene(edited, action["object"], text, SPARSE).box
+        assert box_iou_3d(found, source) < 0.1
+    except NoMatch:
+        pass  # nothing matches any more: the object is gone
+    # the language field at the inpainted table says what the table around it says
+    pts = torch.tensor([source.center_m], dtype=torch.float32)
+    pts[:, 2] = source.center_m[2] - source.size_m[2] / 2 + 0.003
+    ring = pts.clone()
+    ring[:, 0] += max(source.size_m[:2]) / 2 + 0.03
+    with torch.no_grad():
+        a, b = edited.language.language(pts), edited.language.language(ring)
+        mug = text.encode([action["object"]])[0]
+    assert float(a[0] @ b[0]) > float(a[0] @ mug)
