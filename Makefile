@@ -4,7 +4,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.neoedit-installed
 DEMO_OUT ?= outputs/demo
 
-.PHONY: setup demo test lint bench-sim bench-field bench-language bench-remove clean
+.PHONY: setup demo test lint bench-sim bench-field bench-language bench-remove bench-move clean
 
 setup: $(STAMP)
 
@@ -22,18 +22,24 @@ $(STAMP): pyproject.toml
 # post-removal scan.
 demo: $(STAMP)
 	$(VENV)/bin/neo sim scene examples/demo_scene.yaml --out $(DEMO_OUT)/sim --overwrite
-	rm -rf $(DEMO_OUT)/scene $(DEMO_OUT)/render $(DEMO_OUT)/eval_images $(DEMO_OUT)/query $(DEMO_OUT)/no_mug
+	rm -rf $(DEMO_OUT)/scene $(DEMO_OUT)/render $(DEMO_OUT)/eval_images $(DEMO_OUT)/query $(DEMO_OUT)/no_mug $(DEMO_OUT)/mug_preview $(DEMO_OUT)/mug_moved $(DEMO_OUT)/moved_render
 	$(VENV)/bin/neo train $(DEMO_OUT)/sim/pre --out $(DEMO_OUT)/scene --max-steps 600 --eval-every 200
 	$(VENV)/bin/neo render $(DEMO_OUT)/scene --views spiral --n-frames 36 --video --out $(DEMO_OUT)/render
 	$(VENV)/bin/neo eval $(DEMO_OUT)/scene --data $(DEMO_OUT)/sim/pre --json $(DEMO_OUT)/eval.json --images $(DEMO_OUT)/eval_images
 	$(VENV)/bin/neo query $(DEMO_OUT)/scene "mug" --json $(DEMO_OUT)/query.json --out $(DEMO_OUT)/query --image-scale 2
 	$(VENV)/bin/neo remove $(DEMO_OUT)/scene "mug" --out $(DEMO_OUT)/no_mug
 	$(VENV)/bin/neo eval $(DEMO_OUT)/no_mug --data $(DEMO_OUT)/sim/post --json $(DEMO_OUT)/no_mug_eval.json
+	$(VENV)/bin/neo move $(DEMO_OUT)/scene "mug" --translate -0.1 -0.1 0 --yaw 45 --out $(DEMO_OUT)/mug_preview --preview
+	$(VENV)/bin/neo move $(DEMO_OUT)/scene "mug" --translate -0.1 -0.1 0 --yaw 45 --out $(DEMO_OUT)/mug_moved
+	$(VENV)/bin/neo query $(DEMO_OUT)/mug_moved "mug" --json $(DEMO_OUT)/mug_moved_query.json --views 0
+	$(VENV)/bin/neo render $(DEMO_OUT)/mug_moved --views spiral --n-frames 24 --video --out $(DEMO_OUT)/moved_render
 	@echo "contact sheets:  $(DEMO_OUT)/sim/*/contact_sheet.png"
 	@echo "spiral video:    $(DEMO_OUT)/render/video.gif"
 	@echo "held-out views (render | ground truth): $(DEMO_OUT)/eval_images/"
 	@echo "query 'mug' (box + relevancy): $(DEMO_OUT)/query/query.png, box: $(DEMO_OUT)/query.json"
 	@echo "mug removed (new version):     $(DEMO_OUT)/no_mug/report/before_after.png, vs post scan: $(DEMO_OUT)/no_mug_eval.json"
+	@echo "mug moved (preview / full):    $(DEMO_OUT)/mug_preview/report/before_after.png, $(DEMO_OUT)/mug_moved/report/before_after.png"
+	@echo "moved mug found by name:       $(DEMO_OUT)/mug_moved_query.json; spiral video: $(DEMO_OUT)/moved_render/video.gif"
 
 test: $(STAMP)
 	$(PY) -m pytest tests
@@ -55,6 +61,10 @@ bench-language: bench-sim
 
 bench-remove: bench-language
 	$(PY) benchmarks/bench_remove.py --data outputs/neosim_standard --scenes-dir outputs/bench_language --out outputs/bench_remove
+
+bench-move: bench-sim
+	$(PY) benchmarks/bench_move.py --data outputs/neosim_standard --scenes-dir outputs/bench_language --out outputs/bench_move --views 6
+	$(PY) benchmarks/bench_move.py --data outputs/neosim_standard --scenes-dir outputs/bench_language --out outputs/bench_move --views 6 --scenes pick_place_1 pick_place_2 pick_place_3 --methods no-virtual-views no-grid-inpaint no-mask-cond field-distill-only
 
 clean:
 	rm -rf $(VENV) outputs build *.egg-info

@@ -22,12 +22,12 @@ import numpy as np
 
 from neoedit.data import load_scene_data
 from neoedit.edit.inpaint import tile_2x2
-from neoedit.edit.masks import project_box_mask
 from neoedit.edit.refine import crop_window, render_crops
 from neoedit.edit.remove import RemoveConfig, remove_object, working_boxes
 from neoedit.edit.views import virtual_cameras
 from neoedit.eval.evaluate import evaluate
 from neoedit.geometry import OrientedBox
+from neoedit.geometry.masks import project_box_mask
 from neoedit.scene import load_scene
 
 

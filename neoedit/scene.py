@@ -18,6 +18,7 @@ import dataclasses
 import json
 import time
 import uuid
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -31,12 +32,11 @@ from neoedit.cameras.rays import CameraTensors
 from neoedit.data.scan import ScanCameras, dataset_cameras, scan_from_record
 from neoedit.errors import NeoError
 from neoedit.fields.composed import moved_field
+from neoedit.fields.language import LanguageField, LanguageFieldConfig, TextEncoderSpec
 from neoedit.fields.patched import PatchedField
 from neoedit.fields.radiance import Field, RadianceField, RadianceFieldConfig
 from neoedit.fields.suppressed import with_removals
 from neoedit.geometry import OrientedBox
-from neoedit.language.field import LanguageField, LanguageFieldConfig
-from neoedit.language.text import TextEncoderSpec
 from neoedit.rendering.occupancy import OccupancyGrid, OccupancyGridConfig
 from neoedit.rendering.renderer import RenderConfig, render_image
 from neoedit.utils.io import atomic_directory, atomic_write_json
@@ -180,8 +180,14 @@ class Scene:
         return cls(field_, grid, meta)
 
 
-def save_scene(path: Path, scene: Scene, optimizer: torch.optim.Optimizer | None = None) -> None:
-    """Write (or atomically replace) a scene directory."""
+def save_scene(
+    path: Path,
+    scene: Scene,
+    optimizer: torch.optim.Optimizer | None = None,
+    extras: Callable[[Path], None] | None = None,
+) -> None:
+    """Write (or atomically replace) a scene directory. ``extras(folder)`` writes more
+    files into it (an edit's report) before it is published, so they appear with it."""
     with atomic_directory(Path(path), overwrite=True, kind="scene") as tmp:
         tensors = _field_tensors(scene.field)
         check_finite(tensors, Path(path))  # a diverged field never replaces a good version
@@ -209,6 +215,8 @@ def save_scene(path: Path, scene: Scene, optimizer: torch.optim.Optimizer | None
             lang["surface_points_m"] = scene.surface_points_m.detach().cpu().float().contiguous()
             save_file(lang, str(tmp / "language.safetensors"))
         atomic_write_json(tmp / "scene.json", dataclasses.asdict(scene.meta))
+        if extras is not None:
+            extras(tmp)
 
 
 def load_scene(path: Path, device: torch.device | str = "cpu") -> Scene:

@@ -16,12 +16,11 @@ from neoedit.cameras import Cameras
 from neoedit.cli import main
 from neoedit.data import load_scene_data
 from neoedit.edit.inpaint import OpenCVInpainter, inpaint_views, make_inpainter, split_2x2, tile_2x2
-from neoedit.edit.masks import project_box_mask
 from neoedit.edit.views import VirtualViewConfig, virtual_cameras
 from neoedit.errors import NeoError
-from neoedit.eval.regions import box_mask
 from neoedit.fields.suppressed import SuppressedField
 from neoedit.geometry import OrientedBox
+from neoedit.geometry.masks import box_mask, project_box_mask
 from neoedit.scene import load_scene
 from tests.conftest import tiny_clip_vocab
 

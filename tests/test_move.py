@@ -18,13 +18,13 @@ from neoedit.cameras.rays import CameraTensors
 from neoedit.cli import main
 from neoedit.data import load_scene_data
 from neoedit.edit.language_update import pushed_out_of_footprint
-from neoedit.edit.masks import project_box_mask
 from neoedit.edit.relocate import Motion, MoveConfig, move
 from neoedit.fields.composed import ComposedField, TransformedField, moved_field
 from neoedit.fields.patched import PatchedField
 from neoedit.fields.radiance import RadianceField
 from neoedit.geometry import OrientedBox, motion_about, points_in_box
 from neoedit.geometry.box import box_iou_3d
+from neoedit.geometry.masks import project_box_mask
 from neoedit.geometry.transforms import make_transform
 from neoedit.language.localize import QueryConfig, query_scene
 from neoedit.language.text import load_text_encoder
@@ -292,3 +292,26 @@ def test_removal_updates_language_and_keeps_a_single_patch(
         a, b = edited.language.language(pts), edited.language.language(ring)
         mug = text.encode([action["object"]])[0]
     assert float(a[0] @ b[0]) > float(a[0] @ mug)
+
+
+def test_edited_versions_refuse_language_retraining_from_the_scan(
+    move_scene: Path, sim_root: Path, tmp_path: Path
+):
+    """The scan shows the scene before the edit: retraining on it would put the removed
+    object's label back on the inpainted table."""
+    from neoedit.errors import NeoError
+    from neoedit.training.trainer import TrainConfig, train
+
+    (tmp_path / "box.json").write_text(json.dumps(_action(sim_root)["source_box"]))
+    out = tmp_path / "preview"
+    cmd = ["remove", str(move_scene), "--box", str(tmp_path / "box.json"), "--out", str(out)]
+    assert main([*cmd, "--no-inpaint"]) == 0
+    step = load_scene(out).meta.step
+    with pytest.raises(NeoError, match="cannot be retrained from the original scan"):
+        train(
+            sim_root / "pick_place_1" / "pre",
+            out,
+            TrainConfig(max_steps=step, eval_every=0),
+            resume=True,
+            language=LanguageTrainConfig(),
+        )

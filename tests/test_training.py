@@ -14,8 +14,8 @@ from neoedit.data import load_scene_data
 from neoedit.errors import NeoError
 from neoedit.eval.evaluate import render_views
 from neoedit.eval.metrics import psnr, reprojection_error, ssim
-from neoedit.eval.regions import box_mask
 from neoedit.geometry import OrientedBox
+from neoedit.geometry.masks import box_mask
 from neoedit.rendering.renderer import render_image
 from neoedit.scene import load_scene, save_scene
 from neoedit.training.trainer import TrainConfig

@@ -54,8 +54,9 @@ class RemoveCommand:
         scene = load_scene(self.scene, resolve_device(self.device))
         boxes = find_boxes(scene, self.prompt, self.box, self.query, "remove")
         child, strips = remove(scene, boxes, self.edit, self.prompt)
-        save_scene(self.out, child)
-        write_report(self.out / "report", scene, child, strips)
+        save_scene(
+            self.out, child, extras=lambda d: write_report(d / "report", scene, child, strips)
+        )
         rec = child.meta.edits[-1]
         console.print(
             f"wrote {self.out} (version {child.meta.version_id}, parent {child.meta.parent}) in "
@@ -141,8 +142,7 @@ class MoveCommand:
         motions = [Motion(b, motion_for(b, transform)) for b in boxes]
         cfg = dataclasses.replace(self.edit, method=self.method, preview=self.preview)
         child = move(scene, motions, cfg, self.prompt)
-        save_scene(self.out, child)
-        write_report(self.out / "report", scene, child, [])
+        save_scene(self.out, child, extras=lambda d: write_report(d / "report", scene, child, []))
         rec = child.meta.edits[-1]
         console.print(
             f"wrote {self.out} ({rec['method']}, version {child.meta.version_id}, parent "

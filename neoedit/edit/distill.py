@@ -28,10 +28,10 @@ import torch
 
 from neoedit.cameras import Cameras
 from neoedit.cameras.rays import CameraTensors, RayBundle
-from neoedit.edit.masks import project_box_mask
 from neoedit.edit.refine import box_points
 from neoedit.fields.radiance import Field, RadianceField
 from neoedit.geometry import OrientedBox, points_in_box
+from neoedit.geometry.masks import project_box_mask
 from neoedit.rendering.occupancy import OccupancyGrid
 from neoedit.rendering.renderer import RenderConfig, render_rays, sample_rays
 from neoedit.training.loop import fit
@@ -55,8 +55,9 @@ class DistillConfig:
     """Step length that turns densities into the opacities stage 1 compares."""
     lambda_depth: float = 0.5
     """Weight of the stage-2 z-depth L1 [1/m]."""
-    lr: float = 1e-2
-    """Learning rate of the student's hash table (fresh Adam, decaying 10x over a stage)."""
+    lr: float = 2e-2
+    """Learning rate of the student's hash table (fresh Adam, decaying 10x over a stage;
+    measured on pick_place_1: In-PSNR 17.9 dB at 1e-2, 18.9 dB at 2e-2, at the same Rest)."""
     mlp_lr_factor: float = 0.0
     """The student's MLPs learn at this fraction of ``lr``; 0 freezes them (the default:
     they serve the whole scene; measured on pick_place_1, 0.1 cost 0.7 dB Rest-PSNR and

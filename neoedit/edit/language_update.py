@@ -25,11 +25,11 @@ import numpy as np
 import torch
 
 from neoedit.cameras.rays import CameraTensors
-from neoedit.edit.masks import project_box_mask
 from neoedit.fields.composed import region_owner
+from neoedit.fields.language import LanguageField
 from neoedit.fields.suppressed import SuppressedField
 from neoedit.geometry import OrientedBox, points_in_box
-from neoedit.language.field import LanguageField
+from neoedit.geometry.masks import project_box_mask
 from neoedit.language.training import LanguageTrainConfig, fit_language
 from neoedit.rendering.surface import render_surface
 from neoedit.scene import Scene

@@ -31,12 +31,12 @@ import torch
 from neoedit.cameras import Cameras
 from neoedit.cameras.rays import CameraTensors
 from neoedit.edit.inpaint import Inpainter, inpaint_views
-from neoedit.edit.masks import project_box_mask
 from neoedit.edit.visibility import seen_by_cameras
 from neoedit.fields.patched import edit_region
 from neoedit.fields.radiance import Field
 from neoedit.fields.suppressed import with_removals
 from neoedit.geometry import OrientedBox
+from neoedit.geometry.masks import project_box_mask
 from neoedit.rendering.renderer import render_chunked, render_rays
 from neoedit.rendering.volume import opacity_penalty
 from neoedit.scene import Scene

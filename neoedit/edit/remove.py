@@ -196,8 +196,7 @@ def remove_object(
     check_output(scene_dir, out, overwrite)
     parent = load_scene(scene_dir, device)
     child, strips = remove(parent, boxes, cfg, prompt, inpainter)
-    save_scene(Path(out), child)
-    write_report(Path(out) / "report", parent, child, strips)
+    save_scene(Path(out), child, extras=lambda d: write_report(d / "report", parent, child, strips))
     return child
 
 

@@ -12,8 +12,8 @@ import numpy as np
 from neoedit.cameras.rays import CameraTensors
 from neoedit.data import SceneData
 from neoedit.eval.metrics import depth_rmse_m, psnr, reprojection_error, ssim
-from neoedit.eval.regions import masks_for_boxes
 from neoedit.geometry import OrientedBox
+from neoedit.geometry.masks import masks_for_boxes
 from neoedit.scene import Scene
 from neoedit.utils.io import write_png
 from neoedit.utils.progress import track
@@ -58,9 +58,11 @@ def evaluate(
     regions: dict[str, list[np.ndarray | None]] = {"full": [None] * len(indices)}
     if out_boxes:
         regions["out"] = [masks_for_boxes(data.cameras, i, list(out_boxes)) for i in indices]
-        regions["rest"] = [~m for m in regions["out"]]  # type: ignore[operator]
     if in_boxes:
         regions["in"] = [masks_for_boxes(data.cameras, i, list(in_boxes)) for i in indices]
+    if out_boxes or in_boxes:  # "rest": outside every edited box
+        edited = list(out_boxes) + list(in_boxes)
+        regions["rest"] = [~masks_for_boxes(data.cameras, i, edited) for i in indices]
     per_region: dict[str, dict[str, list[float]]] = {r: {m: [] for m in METRICS} for r in regions}
     for k, i in enumerate(indices):
         gt = data.images[i].astype(np.float32) / 255.0

@@ -1,6 +1,8 @@
 """Language field and language-guided localisation (paper section III, opening).
 
-Public API (imported lazily, so ``neoedit.scene`` can use the field module):
+Public API (imported lazily). The language *field* itself lives in
+:mod:`neoedit.fields.language`, beside the radiance field, so scenes store it without
+importing this package (no ``scene`` <-> ``language`` cycle):
 
 * :func:`train_language` / :class:`LanguageTrainConfig`: distil a 2-D teacher into L(x).
 * :func:`query_scene` / :class:`QueryConfig`: prompt -> :class:`QueryResult` (oriented box).
@@ -24,8 +26,6 @@ _EXPORTS = {
     "split_prompts": "relevancy",
     "load_text_encoder": "text",
     "TextEncoderSpec": "text",
-    "LanguageField": "field",
-    "LanguageFieldConfig": "field",
 }
 
 __all__ = sorted(_EXPORTS)

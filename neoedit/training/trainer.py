@@ -310,6 +310,14 @@ def train(
             scan=scan_record(data.cameras, data.file_paths, data.split),
         )
         scene = Scene.create(meta, dev, seed=cfg.seed)
+    if resume and scene.meta.edits and language is not None:
+        # its scan's images and labels show the scene before the edits: training on them
+        # would label the inpainted table "red mug" (each edit updates the language itself)
+        raise NeoError(
+            f"{out} is an edited version ({len(scene.meta.edits)} edit(s)): its language field "
+            "is kept true by its edits and cannot be retrained from the original scan; "
+            "retrain the scan's own version, then edit again (or pass --skip-language)"
+        )
     if isinstance(scene.field, PatchedField):
         # an edited version: its local patches are trained by their edits, not by the scan
         if cfg.max_steps > scene.meta.step:

