@@ -277,7 +277,7 @@ def _field_tensors(field: RadianceField | PatchedField) -> dict[str, torch.Tenso
     """Flat tensors of a field: the base under ``field.``, patch i under ``patch{i}.``."""
     parts: list[tuple[str, torch.nn.Module]] = [("field.", field)]
     if isinstance(field, PatchedField):
-        parts = [("field.", field.base)]
+        parts = [("field.", field.base)]  # type: ignore[list-item]
         parts += [(f"patch{i}.", p) for i, p in enumerate(field.patches)]
     return {
         prefix + k: v.detach().cpu().contiguous()

@@ -20,6 +20,7 @@ over the scan's pixels, which holds the rest of the scene where it was.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -143,6 +144,11 @@ def render_loss(
     return loss
 
 
+def _decay(steps: int, step: int) -> float:
+    """10x exponential decay over ``steps``."""
+    return 0.1 ** (step / max(steps, 1))
+
+
 def distill(
     student: RadianceField,
     student_grid: OccupancyGrid,
@@ -226,7 +232,7 @@ def distill(
                 steps,
                 fn,
                 name,
-                lr_scale=lambda step, steps=steps: 0.1 ** (step / max(steps, 1)),
+                lr_scale=functools.partial(_decay, steps),
                 bar=(progress, task),
             )
     hook.remove()

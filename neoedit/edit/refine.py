@@ -21,6 +21,7 @@ context, which keeps the edit fast.
 
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import dataclass
 
@@ -262,6 +263,10 @@ def original_box_rays(
     return rays, out["rgb"]
 
 
+def _round_status(k: int, rounds: int, xi: float, step: int, ema: float) -> str:
+    return f"round {k}/{rounds} xi {xi:.2f} | loss {ema:.4f}"
+
+
 def refine_removal(
     scene: Scene,
     boxes: list[OrientedBox],
@@ -396,9 +401,7 @@ def refine_removal(
                 n,
                 lambda _: loss_step(),
                 "inpaint+train",
-                status=lambda _, ema, k=k, xi=xi: (
-                    f"round {k + 1}/{rounds} xi {xi:.2f} | loss {ema:.4f}"
-                ),
+                status=functools.partial(_round_status, k + 1, rounds, xi),
                 bar=(progress, task),
             )
             step += n

@@ -197,7 +197,7 @@ def _teacher(
     moving = MaskedField(parent.field, parent.grid.is_occupied)
     moved = [([g], TransformedField(moving, tf)) for g, tf in zip(targets, transforms, strict=True)]
     if cfg.method == "seal3d":
-        empty = EmptyField(parent.field.aabb)
+        empty: Field = EmptyField(parent.field.aabb)
         return ComposedField(moving, [(sources, empty), *moved]), {}
     removed = Scene(
         PatchedField(copy.deepcopy(_base(parent.field))),

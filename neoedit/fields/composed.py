@@ -19,6 +19,9 @@ from neoedit.geometry import OrientedBox, points_in_box
 
 
 class TransformedField(nn.Module):
+    rotation: torch.Tensor  # (3,3) R of the motion
+    translation: torch.Tensor  # (3,) t of the motion
+
     """``field`` moved by the rigid world motion ``transform`` (4,4): at x it answers what
     ``field`` answers at T^-1 x, seen along R^-1 d (so a view-dependent highlight turns
     with the object)."""
@@ -61,9 +64,7 @@ class ComposedField(nn.Module):
     """``base`` everywhere, except inside the boxes of a part, where that part's field
     answers (later parts over earlier ones). Same interface as a radiance field."""
 
-    def __init__(
-        self, base: Field, parts: Sequence[tuple[Sequence[OrientedBox], Field]] = ()
-    ) -> None:
+    def __init__(self, base: Field, parts: Sequence[tuple[list[OrientedBox], Field]] = ()) -> None:
         super().__init__()
         self.base = base
         self.regions: list[list[OrientedBox]] = [list(r) for r, _ in parts]
@@ -136,6 +137,8 @@ class MaskedField(nn.Module):
 class EmptyField(nn.Module):
     """No density anywhere (what a removal without inpainting leaves in its box)."""
 
+    aabb: torch.Tensor
+
     def __init__(self, aabb: torch.Tensor):
         super().__init__()
         self.register_buffer("aabb", aabb.clone())
@@ -160,7 +163,7 @@ def moved_field(
     """The composite of a move: ``base`` outside the boxes; inside ``source`` the
     ``source_field`` (the removed + inpainted field; empty when None); inside ``target`` the
     ``moving`` field under ``transform``. The target wins where the boxes overlap."""
-    filler = source_field if source_field is not None else EmptyField(base.aabb)
+    filler: Field = source_field if source_field is not None else EmptyField(base.aabb)
     return ComposedField(
         base, [(list(source), filler), (list(target), TransformedField(moving, transform))]
     )

@@ -90,9 +90,8 @@ class OrientedBox:
 
     def grown(self, margin_m: float) -> OrientedBox:
         """The box grown by ``margin_m`` on every face (bottom included)."""
-        return OrientedBox(
-            self.center_m, tuple(float(s) + 2 * margin_m for s in self.size_m), self.yaw_deg
-        )
+        sx, sy, sz = (float(s) + 2 * margin_m for s in self.size_m)
+        return OrientedBox(self.center_m, (sx, sy, sz), self.yaw_deg)
 
     def lifted_bottom(self, lift_m: float) -> OrientedBox:
         """The box with its bottom face raised by ``lift_m`` (top kept)."""
