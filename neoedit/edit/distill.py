@@ -29,7 +29,7 @@ import torch
 
 from neoedit.cameras import Cameras
 from neoedit.cameras.rays import CameraTensors, RayBundle
-from neoedit.edit.refine import box_points
+from neoedit.edit.points import box_points
 from neoedit.fields.radiance import Field, RadianceField
 from neoedit.geometry import OrientedBox, points_in_box
 from neoedit.geometry.masks import project_box_mask

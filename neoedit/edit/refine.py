@@ -32,6 +32,7 @@ import torch
 from neoedit.cameras import Cameras
 from neoedit.cameras.rays import CameraTensors
 from neoedit.edit.inpaint import Inpainter, inpaint_views
+from neoedit.edit.points import box_points, original_box_rays, support_points
 from neoedit.edit.visibility import seen_by_cameras
 from neoedit.fields.patched import edit_region
 from neoedit.fields.radiance import Field
@@ -152,19 +153,6 @@ def render_crops(
     return images, torch.stack(depths)
 
 
-def box_points(
-    box: OrientedBox, n: int, floor_m: float, generator: torch.Generator, device
-) -> torch.Tensor:
-    """(n,3) uniform points in the box above its lowest ``floor_m``."""
-    u = torch.rand(n, 3, generator=generator).to(device) * 2 - 1
-    half = torch.as_tensor(box.half_extents, dtype=torch.float32, device=device)
-    local = u * half
-    lift = min(floor_m, float(half[2]))
-    local[:, 2] = local[:, 2] * (half[2] - lift / 2) / half[2] + lift / 2
-    rot = torch.as_tensor(box.rotation, dtype=torch.float32, device=device)
-    return local @ rot.T + torch.as_tensor(box.center_m, dtype=torch.float32, device=device)
-
-
 def unseen_masks(
     scene: Scene,
     virtual: Cameras,
@@ -216,53 +204,6 @@ def unseen_masks(
     return out
 
 
-@torch.no_grad()
-def support_points(
-    field_: Field,
-    boxes: list[OrientedBox],
-    cfg: RefineConfig,
-    generator: torch.Generator,
-    device: torch.device | str,
-    n: int = 32768,
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """``n`` random points in the part of the patch regions under the boxes' bottoms, and
-    the unedited field's opacity (over 1 cm) there: the targets of L_keep."""
-    pts = []
-    for b in boxes:
-        bottom = b.center_m[2] - b.size_m[2] / 2
-        slab = OrientedBox(
-            (b.center_m[0], b.center_m[1], bottom - cfg.below_m / 2),
-            (b.size_m[0], b.size_m[1], cfg.below_m),
-            b.yaw_deg,
-        )
-        pts.append(box_points(slab, n // len(boxes), 0.0, generator, device))
-    points = torch.cat(pts)
-    return points, 1.0 - torch.exp(-0.01 * field_.density(points))
-
-
-@torch.no_grad()
-def original_box_rays(
-    scene: Scene,
-    cameras: Cameras,
-    boxes: list[OrientedBox],
-    n: int,
-    generator: torch.Generator,
-):
-    """``n`` rays of the scan cameras through the boxes' silhouettes and their colour as the
-    unedited field renders it (a stand-in for the scan's photos: the object is visible)."""
-    device = scene.field.aabb.device
-    pix = []
-    for i in range(len(cameras)):
-        mask = np.any([project_box_mask(cameras, i, b) for b in boxes], axis=0)
-        vu = np.argwhere(mask)
-        pix.append(np.column_stack([np.full(len(vu), i), vu]))
-    allpix = torch.as_tensor(np.concatenate(pix))
-    allpix = allpix[torch.randint(0, len(allpix), (n,), generator=generator)].to(device)
-    rays = CameraTensors(cameras, device).rays(allpix[:, 0], allpix[:, 1], allpix[:, 2])
-    out = render_chunked(scene.field, scene.grid, rays, scene.meta.render, scene.background)
-    return rays, out["rgb"]
-
-
 def _round_status(k: int, rounds: int, xi: float, step: int, ema: float) -> str:
     return f"round {k}/{rounds} xi {xi:.2f} | loss {ema:.4f}"
 
@@ -291,7 +232,7 @@ def refine_removal(
     originals = None
     if not cfg.mask_conditioned and scan_cameras is not None:
         originals = original_box_rays(scene, scan_cameras, boxes, 16 * cfg.original_rays, gen)
-    keep_pts, keep_alpha = support_points(scene.field, boxes, cfg, gen, device)
+    keep_pts, keep_alpha = support_points(scene.field, boxes, cfg.below_m, gen, device)
     patch = scene.patched().add_patch(region).requires_grad_(True)
     optimizer = make_adam(field_param_groups(patch, cfg.lr, cfg.mlp_lr_factor), cfg.lr, device)
 
