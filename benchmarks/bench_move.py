@@ -39,6 +39,7 @@ from neoedit.geometry.box import box_iou_3d
 from neoedit.language.localize import QueryConfig, query_scene
 from neoedit.language.relevancy import CANONICAL_PHRASES, relevancy
 from neoedit.language.text import load_text_encoder
+from neoedit.language.training import LanguageTrainConfig
 from neoedit.scene import Scene, load_scene, save_scene
 from neoedit.training.trainer import TrainConfig, train
 from neoedit.utils.io import write_png
@@ -108,6 +109,7 @@ def run_scene(name: str, args: argparse.Namespace, methods: list[str]) -> tuple[
             args.data / name / "pre",
             pre_dir,
             TrainConfig(max_steps=args.train_steps, eval_every=0, checkpoint_every=0),
+            language=LanguageTrainConfig(),
         )
     pre = load_scene(pre_dir)
     text = load_text_encoder(pre.meta.language.text)  # type: ignore[union-attr]

@@ -136,7 +136,7 @@ def neo_process(argv: list[str], kill_at_png: int | None = None) -> subprocess.P
     with ``os._exit`` at the given ``write_png`` call."""
     code = [
         "import os, sys",
-        "import neoedit.rendering.export as m",
+        "import neoedit.export as m",
         "from neoedit.cli import main",
     ]
     if kill_at_png is not None:

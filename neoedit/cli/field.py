@@ -121,7 +121,7 @@ class RenderCommand:
     """Replace OUT if it holds an earlier render (never anything else)."""
 
     def run(self) -> None:
-        from neoedit.rendering.export import render_command
+        from neoedit.export import render_command
 
         n = render_command(
             self.scene,
