@@ -43,15 +43,10 @@ class RemoveCommand:
     device: str = "auto"
 
     def run(self) -> None:
-        from neoedit.edit.history import check_output
         from neoedit.edit.remove import remove, write_report
-        from neoedit.scene import load_scene, save_scene
-        from neoedit.utils.device import resolve_device
+        from neoedit.scene import save_scene
 
-        if (self.prompt is None) == (self.box is None):
-            raise NeoError('give either a prompt ("red mug") or --box BOX.json, not both')
-        check_output(self.scene, self.out, self.overwrite)
-        scene = load_scene(self.scene, resolve_device(self.device))
+        scene = start_edit(self.scene, self.out, self.prompt, self.box, self.overwrite, self.device)
         boxes = find_boxes(scene, self.prompt, self.box, self.query, "remove")
         child, strips = remove(scene, boxes, self.edit, self.prompt)
         save_scene(
@@ -62,6 +57,21 @@ class RemoveCommand:
             f"wrote {self.out} (version {child.meta.version_id}, parent {child.meta.parent}) in "
             f"{rec['seconds']:.1f} s; pictures in {self.out / 'report'}"
         )
+
+
+def start_edit(
+    scene_dir: Path, out: Path, prompt: str | None, box: Path | None, overwrite: bool, device: str
+) -> Scene:
+    """The checks every edit makes before any work (one of prompt / box; an output that is
+    not the input and may be written), then the scene, loaded once."""
+    from neoedit.edit.history import check_output
+    from neoedit.scene import load_scene
+    from neoedit.utils.device import resolve_device
+
+    if (prompt is None) == (box is None):
+        raise NeoError('give either a prompt ("red mug") or --box BOX.json, not both')
+    check_output(scene_dir, out, overwrite)
+    return load_scene(scene_dir, resolve_device(device))
 
 
 def find_boxes(
@@ -127,17 +137,12 @@ class MoveCommand:
     device: str = "auto"
 
     def run(self) -> None:
-        from neoedit.edit.history import check_output
         from neoedit.edit.relocate import Motion, move
         from neoedit.edit.remove import write_report
-        from neoedit.scene import load_scene, save_scene
-        from neoedit.utils.device import resolve_device
+        from neoedit.scene import save_scene
 
-        if (self.prompt is None) == (self.box is None):
-            raise NeoError('give either a prompt ("red mug") or --box BOX.json, not both')
         transform = self.motion()
-        check_output(self.scene, self.out, self.overwrite)
-        scene = load_scene(self.scene, resolve_device(self.device))
+        scene = start_edit(self.scene, self.out, self.prompt, self.box, self.overwrite, self.device)
         boxes = find_boxes(scene, self.prompt, self.box, self.query, "move")
         motions = [Motion(b, motion_for(b, transform)) for b in boxes]
         cfg = dataclasses.replace(self.edit, method=self.method, preview=self.preview)
