@@ -13,6 +13,7 @@ from conftest import TINY_FIELD, tiny_train
 from hypothesis import given
 from hypothesis import strategies as st
 from test_edit import tree_digest
+from test_language import SPARSE  # the tiny scan's sparse cloud: looser clustering
 
 from neoedit.cameras.rays import CameraTensors
 from neoedit.cli import main
@@ -26,7 +27,7 @@ from neoedit.geometry import OrientedBox, motion_about, points_in_box
 from neoedit.geometry.box import box_iou_3d
 from neoedit.geometry.masks import project_box_mask
 from neoedit.geometry.transforms import make_transform
-from neoedit.language.localize import QueryConfig, query_scene
+from neoedit.language.localize import query_scene
 from neoedit.language.text import load_text_encoder
 from neoedit.language.training import LanguageTrainConfig
 from neoedit.scene import load_scene
@@ -126,8 +127,6 @@ FAST = [
     "--edit.remove.refine.steps", "30", "--edit.remove.refine.rounds", "1",
     "--edit.remove.views.turns", "1", "--edit.language.steps", "60",
 ]  # fmt: skip
-# the tiny 64x48 scan gives a sparse cloud: cluster with a wider radius and fewer neighbours
-SPARSE = QueryConfig(min_cluster_points=10, min_samples=4, eps_m=0.03)
 SPARSE_ARGS = [
     "--query.min-cluster-points",
     "10",

@@ -83,10 +83,9 @@ def find_boxes(
     from neoedit.language.localize import query_scene
     from neoedit.language.relevancy import split_prompts
     from neoedit.language.text import load_text_encoder
-    from neoedit.utils.validate import check_edit_boxes
 
     if box is not None:
-        return check_edit_boxes(scene, load_boxes(box))  # inside the scene, not empty
+        return load_boxes(box)  # remove() / move() check them before any work
     prompts = split_prompts(prompt or "")
     if not prompts:
         raise NeoError(f'empty prompt: say which object to {verb}, e.g. "red mug"')

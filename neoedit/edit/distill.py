@@ -24,7 +24,6 @@ import functools
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-import numpy as np
 import torch
 
 from neoedit.cameras import Cameras
@@ -32,7 +31,7 @@ from neoedit.cameras.rays import CameraTensors, RayBundle
 from neoedit.edit.points import box_points
 from neoedit.fields.radiance import Field, RadianceField
 from neoedit.geometry import OrientedBox, points_in_box
-from neoedit.geometry.masks import project_box_mask
+from neoedit.geometry.masks import box_pixels
 from neoedit.rendering.occupancy import OccupancyGrid
 from neoedit.rendering.renderer import RenderConfig, render_rays, sample_rays
 from neoedit.training.loop import fit
@@ -89,14 +88,8 @@ class RayPool:
         self.n_scan = len(scan)
         self.cams = CameraTensors(cams, device)
         self.width, self.height = cams.width, cams.height
-        focus = []
-        for i in range(len(cams)):
-            mask = np.zeros((int(cams.height[i]), int(cams.width[i])), bool)
-            for box in boxes:
-                mask |= project_box_mask(cams, i, box)
-            vu = np.argwhere(mask)
-            focus.append(np.column_stack([np.full(len(vu), i), vu]))
-        self.focus = torch.as_tensor(np.concatenate(focus), device=device)  # (P,3) cam, v, u
+        # (P,3) camera, v, u of the pixels whose ray crosses an edit box
+        self.focus = torch.as_tensor(box_pixels(cams, list(boxes)), device=device)
         self.device = device
         self.gen = torch.Generator().manual_seed(seed)
 

@@ -29,7 +29,7 @@ from neoedit.fields.composed import region_owner
 from neoedit.fields.language import LanguageField
 from neoedit.fields.suppressed import SuppressedField
 from neoedit.geometry import OrientedBox, points_in_box
-from neoedit.geometry.masks import project_box_mask
+from neoedit.geometry.masks import box_pixels
 from neoedit.language.training import LanguageTrainConfig, fit_language
 from neoedit.rendering.surface import render_surface
 from neoedit.scene import Scene
@@ -117,14 +117,7 @@ def _edited_surface(child: Scene, boxes: list[OrientedBox], cfg: LanguageUpdateC
     crosses them."""
     cameras, _, split = child.scan_cameras()
     cams = cameras.subset(split.get("train", np.arange(len(cameras))))
-    pixels = []
-    for i in range(len(cams)):
-        mask = np.zeros((int(cams.height[i]), int(cams.width[i])), bool)
-        for box in boxes:
-            mask |= project_box_mask(cams, i, box)
-        vu = np.argwhere(mask)
-        pixels.append(np.column_stack([np.full(len(vu), i), vu]))
-    pix = np.concatenate(pixels)
+    pix = box_pixels(cams, boxes)
     device = child.field.aabb.device
     if len(pix) == 0:
         return torch.zeros((0, 3), device=device)

@@ -3,14 +3,13 @@
 
 from __future__ import annotations
 
-import numpy as np
 import torch
 
 from neoedit.cameras import Cameras
 from neoedit.cameras.rays import CameraTensors, RayBundle
 from neoedit.fields.radiance import Field
 from neoedit.geometry import OrientedBox
-from neoedit.geometry.masks import project_box_mask
+from neoedit.geometry.masks import box_pixels
 from neoedit.rendering.renderer import render_chunked
 from neoedit.scene import Scene
 
@@ -63,12 +62,7 @@ def original_box_rays(
     """``n`` rays of the scan cameras through the boxes' silhouettes and their colour as the
     unedited field renders it (a stand-in for the scan's photos: the object is visible)."""
     device = scene.field.aabb.device
-    pix = []
-    for i in range(len(cameras)):
-        mask = np.any([project_box_mask(cameras, i, b) for b in boxes], axis=0)
-        vu = np.argwhere(mask)
-        pix.append(np.column_stack([np.full(len(vu), i), vu]))
-    allpix = torch.as_tensor(np.concatenate(pix))
+    allpix = torch.as_tensor(box_pixels(cameras, boxes))
     allpix = allpix[torch.randint(0, len(allpix), (n,), generator=generator)].to(device)
     rays = CameraTensors(cameras, device).rays(allpix[:, 0], allpix[:, 1], allpix[:, 2])
     out = render_chunked(scene.field, scene.grid, rays, scene.meta.render, scene.background)

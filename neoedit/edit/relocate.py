@@ -34,7 +34,7 @@ from neoedit.edit.history import new_version
 from neoedit.edit.inpaint import Inpainter
 from neoedit.edit.language_update import LanguageEdit, LanguageUpdateConfig, update_language
 from neoedit.edit.refine import RefineConfig
-from neoedit.edit.remove import RemoveConfig, check_boxes_in_scene, inpaint_removal, working_boxes
+from neoedit.edit.remove import RemoveConfig, inpaint_removal, working_boxes
 from neoedit.edit.views import concat_cameras, virtual_cameras
 from neoedit.errors import NeoError
 from neoedit.fields.composed import ComposedField, EmptyField, MaskedField, TransformedField
@@ -43,6 +43,7 @@ from neoedit.fields.radiance import Field, RadianceField
 from neoedit.geometry import OrientedBox, is_rigid
 from neoedit.rendering.occupancy import cells_in_boxes, refresh_grid
 from neoedit.scene import Scene
+from neoedit.utils.validate import check_edit_boxes
 
 METHODS = ("neo", "seal3d")
 
@@ -101,7 +102,7 @@ def check_motions(scene: Scene, motions: list[Motion]) -> None:
     """Refuse non-rigid or non-finite transforms and targets outside the scene box."""
     if not motions:
         raise NeoError("nothing to move: give a prompt or --box")
-    check_boxes_in_scene(scene, [m.box for m in motions])
+    check_edit_boxes(scene, [m.box for m in motions])  # inside the scene box, not empty
     aabb = scene.field.aabb.cpu().numpy()
     for m in motions:
         if not is_rigid(m.transform):
@@ -199,17 +200,14 @@ def _teacher(
     if cfg.method == "seal3d":
         empty: Field = EmptyField(parent.field.aabb)
         return ComposedField(moving, [(sources, empty), *moved]), {}
+    # the parent's field (earlier patches included) plus the removal's patch
     removed = Scene(
-        PatchedField(copy.deepcopy(_base(parent.field))),
+        copy.deepcopy(parent.field),
         copy.deepcopy(parent.grid),
-        copy.deepcopy(parent.meta),
+        parent.meta,
         parent.language,
         parent.surface_points_m,
     )
-    if isinstance(parent.field, PatchedField):  # keep the parent's earlier patches
-        for region, patch in zip(parent.field.regions, parent.field.patches, strict=True):
-            removed.patched().regions.append(list(region))
-            removed.patched().parts.append(copy.deepcopy(patch))
     remove_cfg = dataclasses.replace(cfg.remove, virtual_views=cfg.virtual_views)
     timings = inpaint_removal(removed, sources, sources, remove_cfg, inpainter)
     removed.field.requires_grad_(False)

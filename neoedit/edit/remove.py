@@ -36,6 +36,7 @@ from neoedit.geometry import OrientedBox
 from neoedit.rendering.occupancy import cells_in_boxes, refresh_grid
 from neoedit.scene import Scene, load_scene, save_scene
 from neoedit.utils.io import write_png
+from neoedit.utils.validate import check_edit_boxes
 from neoedit.viz.contact_sheet import tile_images
 
 REMOVAL_MODES = ("resample", "suppress")
@@ -87,7 +88,7 @@ def remove(
         raise NeoError(f"unknown removal {cfg.removal!r} (choose from {', '.join(REMOVAL_MODES)})")
     if not boxes:
         raise NeoError("nothing to remove: give a prompt or --box")
-    check_boxes_in_scene(parent, boxes)
+    check_edit_boxes(parent, boxes)  # inside the scene box, not empty
     t0 = time.perf_counter()
     work = working_boxes(parent, boxes, cfg)
     record = {
@@ -166,18 +167,6 @@ def facing_cameras(cameras: Cameras, boxes: list[OrientedBox], n: int) -> Camera
     forward = -cameras.camera_to_world[:, :3, 2]  # OpenGL: cameras look down -z
     order = np.argsort(-np.sum(forward * to_box, axis=1))
     return cameras.subset(np.sort(order[:n]))
-
-
-def check_boxes_in_scene(scene: Scene, boxes: list[OrientedBox]) -> None:
-    """Refuse boxes that do not intersect the scene box (a typo in a box file)."""
-    aabb = scene.field.aabb.cpu().numpy()
-    for box in boxes:
-        corners = box.corners()
-        if np.any(corners.max(0) < aabb[0]) or np.any(corners.min(0) > aabb[1]):
-            raise NeoError(
-                f"box centred at {np.round(box.center_m, 3).tolist()} m lies outside the scene "
-                f"box {np.round(aabb, 3).tolist()}"
-            )
 
 
 def remove_object(

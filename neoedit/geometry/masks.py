@@ -59,3 +59,15 @@ def project_box_mask(cameras: Cameras, index: int, box: OrientedBox) -> np.ndarr
         inside &= orient * ((b[0] - a[0]) * (v - a[1]) - (b[1] - a[1]) * (u - a[0])) >= 0
     mask[lo[1] : hi[1], lo[0] : hi[0]] = inside
     return mask
+
+
+def box_pixels(cameras: Cameras, boxes: list[OrientedBox]) -> np.ndarray:
+    """(P,3) int64 rows (camera, v, u) of every pixel whose ray crosses one of ``boxes``."""
+    rows = [np.zeros((0, 3), np.int64)]
+    for i in range(len(cameras)):
+        mask = np.zeros((int(cameras.height[i]), int(cameras.width[i])), bool)
+        for box in boxes:
+            mask |= project_box_mask(cameras, i, box)
+        vu = np.argwhere(mask)
+        rows.append(np.column_stack([np.full(len(vu), i), vu]))
+    return np.concatenate(rows).astype(np.int64)
