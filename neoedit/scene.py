@@ -39,6 +39,8 @@ from neoedit.fields.suppressed import with_removals
 from neoedit.geometry import OrientedBox
 from neoedit.rendering.occupancy import OccupancyGrid, OccupancyGridConfig
 from neoedit.rendering.renderer import RenderConfig, render_image
+from neoedit.storage import find_store, resolve_scene_dir
+from neoedit.storage.store import MANIFEST
 from neoedit.utils.io import atomic_directory, atomic_write_json
 from neoedit.utils.validate import check_finite, check_language, check_scene_meta, check_weights
 
@@ -187,40 +189,66 @@ def save_scene(
     extras: Callable[[Path], None] | None = None,
 ) -> None:
     """Write (or atomically replace) a scene directory. ``extras(folder)`` writes more
-    files into it (an edit's report) before it is published, so they appear with it."""
-    with atomic_directory(Path(path), overwrite=True, kind="scene") as tmp:
-        tensors = _field_tensors(scene.field)
-        check_finite(tensors, Path(path))  # a diverged field never replaces a good version
-        if isinstance(scene.field, PatchedField):
-            known = scene.meta.patches  # patches added since loading belong to this version
-            scene.meta.patches = [
-                {
-                    "region": [b.to_dict() for b in region],
-                    "version": known[i]["version"] if i < len(known) else scene.meta.version_id,
-                }
-                for i, region in enumerate(scene.field.regions)
-            ]
-        tensors["grid.density"] = scene.grid.density.detach().cpu().contiguous()
-        tensors["grid.n_updates"] = scene.grid.n_updates.detach().cpu().reshape(1)
-        save_file(tensors, str(tmp / "field.safetensors"))
+    files into it (an edit's report) before it is published, so they appear with it.
+
+    A ``path`` inside a scene store (:mod:`neoedit.storage`) becomes a new version of the
+    store: stored as deltas against its parent when that is in the store, and made current.
+    The scene's tensors are then set to what was stored (bit-identical to a reload)."""
+    path = Path(path)
+    _sync_patches(scene)
+    groups = _scene_groups(scene)
+    check_finite(groups["field"], path)  # a diverged field never replaces a good version
+    store = find_store(path)
+    if store is not None:
+        if optimizer is not None:
+            raise NeoError(f"{path}: training writes a plain scene folder, not a store version")
+        stored = store.write(path.name, groups, dataclasses.asdict(scene.meta), extras)
+        _apply_groups(scene, stored, path)
+        return
+    with atomic_directory(path, overwrite=True, kind="scene") as tmp:
+        save_file(groups["field"], str(tmp / "field.safetensors"))
         if optimizer is not None:
             save_file(
                 _optimizer_tensors(scene.field, optimizer), str(tmp / "optimizer.safetensors")
             )
-        if scene.language is not None and scene.surface_points_m is not None:
-            lang = {
-                f"language.{k}": v.detach().cpu().contiguous()
-                for k, v in scene.language.state_dict().items()
-            }
-            lang["surface_points_m"] = scene.surface_points_m.detach().cpu().float().contiguous()
-            save_file(lang, str(tmp / "language.safetensors"))
+        if "language" in groups:
+            save_file(groups["language"], str(tmp / "language.safetensors"))
         atomic_write_json(tmp / "scene.json", dataclasses.asdict(scene.meta))
         if extras is not None:
             extras(tmp)
 
 
-def load_scene(path: Path, device: torch.device | str = "cpu") -> Scene:
-    path = Path(path)
+def _sync_patches(scene: Scene) -> None:
+    """``meta.patches`` from the field (patches added since loading belong to this version)."""
+    if isinstance(scene.field, PatchedField):
+        known = scene.meta.patches
+        scene.meta.patches = [
+            {
+                "region": [b.to_dict() for b in region],
+                "version": known[i]["version"] if i < len(known) else scene.meta.version_id,
+            }
+            for i, region in enumerate(scene.field.regions)
+        ]
+
+
+def _scene_groups(scene: Scene) -> dict[str, dict[str, torch.Tensor]]:
+    """The tensors of a version: 'field' (weights, patches, occupancy grid) and, with a
+    language field, 'language' (its weights and the query point cloud)."""
+    field_ = _field_tensors(scene.field)
+    field_["grid.density"] = scene.grid.density.detach().cpu().contiguous()
+    field_["grid.n_updates"] = scene.grid.n_updates.detach().cpu().reshape(1)
+    groups = {"field": field_}
+    if scene.language is not None and scene.surface_points_m is not None:
+        lang = {
+            f"language.{k}": v.detach().cpu().contiguous()
+            for k, v in scene.language.state_dict().items()
+        }
+        lang["surface_points_m"] = scene.surface_points_m.detach().cpu().float().contiguous()
+        groups["language"] = lang
+    return groups
+
+
+def _read_meta(path: Path) -> SceneMeta:
     meta_path = path / "scene.json"
     if not path.is_dir():
         raise NeoError(f"scene not found: {path}")
@@ -241,36 +269,79 @@ def load_scene(path: Path, device: torch.device | str = "cpu") -> Scene:
             f"{meta_path}: malformed metadata: {e.errors()[0]['loc']}: {e.errors()[0]['msg']}"
         ) from None
     check_scene_meta(meta, meta_path)
+    return meta
+
+
+def _read_files(path: Path, meta: SceneMeta) -> dict[str, dict[str, torch.Tensor]]:
+    """The tensor groups of a plain scene folder (field.safetensors, language.safetensors)."""
     weights = path / "field.safetensors"
     if not weights.is_file():
         raise NeoError(f"{path}: missing field.safetensors")
     try:
-        tensors = load_file(str(weights))
+        groups = {"field": load_file(str(weights))}
     except Exception as e:  # safetensors raises its own error types for corrupt files
         raise NeoError(f"{weights}: cannot read weights: {e}") from None
-    check_weights(meta, tensors, weights)
+    if meta.language is not None:
+        check_language(meta, path, None)
+        file = path / "language.safetensors"
+        if not file.is_file():
+            raise NeoError(
+                f"{path}: scene.json names a language field but language.safetensors is missing"
+            )
+        try:
+            groups["language"] = load_file(str(file))
+        except Exception as e:  # corrupt file
+            raise NeoError(f"{file}: cannot load the language field: {e}") from None
+    return groups
+
+
+def load_scene(path: Path, device: torch.device | str = "cpu") -> Scene:
+    """A scene folder, a version of a scene store, or a store (its current version)."""
+    path = resolve_scene_dir(Path(path))
+    meta = _read_meta(path)
+    store = find_store(path) if (path / MANIFEST).is_file() else None
+    if (path / MANIFEST).is_file() and store is None:
+        raise NeoError(f"{path} is a store version outside its store (no store.json beside it)")
+    groups = store.tensors(path.name) if store is not None else _read_files(path, meta)
     scene = Scene.create(meta, device="cpu")
+    _apply_groups(scene, groups, path)
+    scene.field.to(device)
+    scene.grid.to(device)
+    if scene.language is not None:
+        scene.language.to(device)
+        scene.surface_points_m = scene.surface_points_m.to(device)  # type: ignore[union-attr]
+    return scene
+
+
+def _apply_groups(scene: Scene, groups: dict[str, dict[str, torch.Tensor]], path: Path) -> None:
+    """Load the tensor groups into ``scene`` (its field, patches, grid and language field)."""
+    meta, tensors = scene.meta, groups["field"]
+    weights = path / "field.safetensors"
+    check_weights(meta, tensors, weights)
+    device = scene.field.aabb.device
     try:
-        scene.field.load_state_dict(_state(tensors, "field."))
+        base = scene.field.base if isinstance(scene.field, PatchedField) else scene.field
+        base.load_state_dict(_state(tensors, "field."))
         if meta.patches:
             patched = scene.patched()
             for i, p in enumerate(meta.patches):
+                state = _state(tensors, f"patch{i}.")
+                if i < len(patched.patches):
+                    patched.patches[i].load_state_dict(state)
+                    continue
                 region = [OrientedBox.from_dict(b) for b in p["region"]]
-                patched.add_patch(region).load_state_dict(_state(tensors, f"patch{i}."))
+                patched.add_patch(region).load_state_dict(state)
         scene.grid.density.copy_(tensors["grid.density"])
         scene.grid.n_updates.copy_(tensors["grid.n_updates"][0])
         scene.grid.refresh_mask()
     except (RuntimeError, KeyError) as e:
         raise NeoError(f"{weights}: weights do not match the scene config: {e}") from None
     if meta.language is not None:
-        check_language(meta, path, None)
-        _load_language(path, scene, meta.language)
+        if "language" not in groups:
+            raise NeoError(f"{path}: scene.json names a language field but it is not stored")
+        _load_language(path, scene, meta.language, groups["language"])
         check_language(meta, path, scene)
-        scene.language.to(device)  # type: ignore[union-attr]
-        scene.surface_points_m = scene.surface_points_m.to(device)  # type: ignore[union-attr]
     scene.field.to(device)
-    scene.grid.to(device)
-    return scene
 
 
 def _field_tensors(field: RadianceField | PatchedField) -> dict[str, torch.Tensor]:
@@ -290,14 +361,11 @@ def _state(tensors: dict[str, torch.Tensor], prefix: str) -> dict[str, torch.Ten
     return {k.removeprefix(prefix): v for k, v in tensors.items() if k.startswith(prefix)}
 
 
-def _load_language(path: Path, scene: Scene, meta: LanguageMeta) -> None:
+def _load_language(
+    path: Path, scene: Scene, meta: LanguageMeta, tensors: dict[str, torch.Tensor]
+) -> None:
     file = path / "language.safetensors"
-    if not file.is_file():
-        raise NeoError(
-            f"{path}: scene.json names a language field but language.safetensors is missing"
-        )
     try:
-        tensors = load_file(str(file))
         field_ = LanguageField(meta.field, scene.field.aabb.cpu())
         field_.load_state_dict(
             {

@@ -83,3 +83,18 @@ def trained(sim_root: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("scene") / "pre"
     tiny_train(sim_root / "removal_1" / "pre", out, steps=400)
     return out
+
+
+@pytest.fixture(scope="session")
+def move_scene(sim_root: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The tiny pick-and-place pre scan with a label-teacher language field."""
+    from neoedit.language.training import LanguageTrainConfig
+
+    out = tmp_path_factory.mktemp("move") / "pre"
+    tiny_train(
+        sim_root / "pick_place_1" / "pre",
+        out,
+        steps=400,
+        language=LanguageTrainConfig(rays=16384, steps=150, batch=2048),
+    )
+    return out

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from conftest import TINY_FIELD, tiny_train
+from conftest import TINY_FIELD
 from hypothesis import given
 from hypothesis import strategies as st
 from test_edit import tree_digest
@@ -29,7 +29,6 @@ from neoedit.geometry.masks import project_box_mask
 from neoedit.geometry.transforms import make_transform
 from neoedit.language.localize import query_scene
 from neoedit.language.text import load_text_encoder
-from neoedit.language.training import LanguageTrainConfig
 from neoedit.scene import load_scene
 
 AABB = torch.tensor([[-0.5, -0.5, -0.2], [0.5, 0.5, 0.4]])
@@ -110,19 +109,6 @@ def test_points_pushed_out_of_a_box_land_just_outside_its_footprint():
     assert torch.allclose(out[:, 2], pts[:, 2])  # height kept
 
 
-@pytest.fixture(scope="module")
-def move_scene(sim_root: Path, tmp_path_factory) -> Path:
-    """The tiny pick-and-place pre scan with a label-teacher language field."""
-    out = tmp_path_factory.mktemp("move") / "pre"
-    tiny_train(
-        sim_root / "pick_place_1" / "pre",
-        out,
-        steps=400,
-        language=LanguageTrainConfig(rays=16384, steps=150, batch=2048),
-    )
-    return out
-
-
 FAST = [
     "--edit.remove.refine.steps", "30", "--edit.remove.refine.rounds", "1",
     "--edit.remove.views.turns", "1", "--edit.language.steps", "60",
@@ -166,8 +152,11 @@ def test_move_end_to_end(move_scene: Path, sim_root: Path, tmp_path: Path):
     assert main([*args, "--out", str(out), *FAST, *SPARSE_ARGS]) == 0
     assert tree_digest(move_scene) == before  # the input is untouched, byte for byte
     moved = load_scene(out)
-    # same structure as the input: one radiance field (no patches), one language field
-    assert isinstance(moved.field, RadianceField) and not moved.meta.patches
+    # the edit is one patch owning the edited regions; the base field is the parent's, bit
+    # for bit (the rest of the scene cannot drift), plus one language field
+    assert isinstance(moved.field, PatchedField) and len(moved.meta.patches) == 1
+    for k, v in parent.field.state_dict().items():
+        assert torch.equal(moved.field.base.state_dict()[k], v), k
     assert moved.meta.parent == parent.meta.version_id and moved.meta.edits[-1]["type"] == "move"
     # density left the edit's source box and appeared in its target box (the tiny scan's
     # query box is loose, so the edit's own boxes are checked, not the simulator's)
@@ -239,10 +228,15 @@ def test_moved_version_is_self_contained_and_moves_again(
     with torch.no_grad():
         c = torch.tensor([moved_box.center_m], dtype=torch.float32)
         assert float(field_.density(c)) >= 0.0
-    # a full move of the moved object again (a chain), from the preview's parent copy
+    # a full move of the moved object again, from the preview itself: the preview's
+    # render-time move is settled into a patch first, then the move trains its own patch
+    (tmp_path / "moved_box.json").write_text(json.dumps(p.meta.moves[0]["target"]))
     again = tmp_path / "again"
-    assert main([*cmd, "-0.05", "0", "0", "--out", str(again), *FAST]) == 0
-    assert isinstance(load_scene(again).field, RadianceField)
+    cmd2 = ["move", str(preview), "--box", str(tmp_path / "moved_box.json"), "--translate"]
+    assert main([*cmd2, "-0.05", "0", "0", "--out", str(again), *FAST]) == 0
+    a = load_scene(again)
+    assert isinstance(a.field, PatchedField) and len(a.meta.patches) == 2 and not a.meta.moves
+    assert a.meta.parent == p.meta.version_id and "settle_s" in a.meta.edits[-1]["timings"]
 
 
 def test_move_refuses_bad_motions(move_scene: Path, sim_root: Path, tmp_path: Path, capsys):
@@ -304,6 +298,7 @@ def test_edited_versions_refuse_language_retraining_from_the_scan(
     """The scan shows the scene before the edit: retraining on it would put the removed
     object's label back on the inpainted table."""
     from neoedit.errors import NeoError
+    from neoedit.language.training import LanguageTrainConfig
     from neoedit.training.trainer import TrainConfig, train
 
     (tmp_path / "box.json").write_text(json.dumps(_action(sim_root)["source_box"]))

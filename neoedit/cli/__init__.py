@@ -12,7 +12,9 @@ from rich.console import Console
 from neoedit.cli.data import InfoCommand
 from neoedit.cli.edit import MoveCommand, RemoveCommand
 from neoedit.cli.field import EvalCommand, RenderCommand, TrainCommand
+from neoedit.cli.history import DiffCommand, LogCommand, RestoreCommand
 from neoedit.cli.language import QueryCommand
+from neoedit.cli.plan import PlanCommand
 from neoedit.cli.sim import SimBenchmarkCommand, SimSceneCommand
 from neoedit.errors import NeoError
 from neoedit.utils.validate import check_device, user_message
@@ -36,6 +38,10 @@ Commands = Union[  # noqa: UP007
     Annotated[QueryCommand, tyro.conf.subcommand("query")],
     Annotated[RemoveCommand, tyro.conf.subcommand("remove")],
     Annotated[MoveCommand, tyro.conf.subcommand("move")],
+    Annotated[PlanCommand, tyro.conf.subcommand("plan")],
+    Annotated[LogCommand, tyro.conf.subcommand("log")],
+    Annotated[RestoreCommand, tyro.conf.subcommand("restore")],
+    Annotated[DiffCommand, tyro.conf.subcommand("diff")],
 ]
 
 

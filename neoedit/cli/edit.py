@@ -12,6 +12,7 @@ import numpy as np
 import tyro
 from rich.console import Console
 
+from neoedit.edit.history import edit_lock
 from neoedit.edit.relocate import MoveConfig
 from neoedit.edit.remove import RemoveConfig
 from neoedit.errors import NeoError
@@ -46,12 +47,15 @@ class RemoveCommand:
         from neoedit.edit.remove import remove, write_report
         from neoedit.scene import save_scene
 
-        scene = start_edit(self.scene, self.out, self.prompt, self.box, self.overwrite, self.device)
-        boxes = find_boxes(scene, self.prompt, self.box, self.query, "remove")
-        child, strips = remove(scene, boxes, self.edit, self.prompt)
-        save_scene(
-            self.out, child, extras=lambda d: write_report(d / "report", scene, child, strips)
-        )
+        with edit_lock(self.out):
+            scene = start_edit(
+                self.scene, self.out, self.prompt, self.box, self.overwrite, self.device
+            )
+            boxes = find_boxes(scene, self.prompt, self.box, self.query, "remove")
+            child, strips = remove(scene, boxes, self.edit, self.prompt)
+            save_scene(
+                self.out, child, extras=lambda d: write_report(d / "report", scene, child, strips)
+            )
         rec = child.meta.edits[-1]
         console.print(
             f"wrote {self.out} (version {child.meta.version_id}, parent {child.meta.parent}) in "
@@ -141,12 +145,17 @@ class MoveCommand:
         from neoedit.scene import save_scene
 
         transform = self.motion()
-        scene = start_edit(self.scene, self.out, self.prompt, self.box, self.overwrite, self.device)
-        boxes = find_boxes(scene, self.prompt, self.box, self.query, "move")
-        motions = [Motion(b, motion_for(b, transform)) for b in boxes]
-        cfg = dataclasses.replace(self.edit, method=self.method, preview=self.preview)
-        child = move(scene, motions, cfg, self.prompt)
-        save_scene(self.out, child, extras=lambda d: write_report(d / "report", scene, child, []))
+        with edit_lock(self.out):
+            scene = start_edit(
+                self.scene, self.out, self.prompt, self.box, self.overwrite, self.device
+            )
+            boxes = find_boxes(scene, self.prompt, self.box, self.query, "move")
+            motions = [Motion(b, motion_for(b, transform)) for b in boxes]
+            cfg = dataclasses.replace(self.edit, method=self.method, preview=self.preview)
+            child = move(scene, motions, cfg, self.prompt)
+            save_scene(
+                self.out, child, extras=lambda d: write_report(d / "report", scene, child, [])
+            )
         rec = child.meta.edits[-1]
         console.print(
             f"wrote {self.out} ({rec['method']}, version {child.meta.version_id}, parent "

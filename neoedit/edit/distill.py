@@ -152,11 +152,15 @@ def distill(
     render_cfg: RenderConfig,
     background: torch.Tensor,
     cfg: DistillConfig,
+    view: Field | None = None,
 ) -> dict[str, float]:
     """Fit ``student`` (in place) to ``teacher`` in the two stages of eq. 6; returns the
     final smoothed loss of each stage. ``student_grid`` is where the student is sampled in
-    stage 2 (it should cover both the teacher's content and the student's old content)."""
+    stage 2 (it should cover both the teacher's content and the student's old content).
+    ``view`` is the field the losses see when ``student`` is a part of it (a patch of a
+    :class:`~neoedit.fields.patched.PatchedField`); by default the student itself."""
     device = background.device
+    seen: Field = student if view is None else view
     student.requires_grad_(True)
     if cfg.freeze_mlp or cfg.mlp_lr_factor == 0:
         for name, p in student.named_parameters():
@@ -195,14 +199,14 @@ def distill(
             )
             pts, dirs = torch.cat([pts, inside]), torch.cat([dirs, rand_dirs])
         allow(pts)
-        return field_loss(student, teacher, pts, dirs, cfg.opacity_step_m)
+        return field_loss(seen, teacher, pts, dirs, cfg.opacity_step_m)
 
     def stage2(_: int) -> torch.Tensor:
         rays = pool.sample(cfg.rays, cfg.focus)
         with torch.no_grad():
             target = render_rays(teacher, teacher_grid, rays, render_cfg, background)
         out = render_rays(
-            student, student_grid, rays, render_cfg, background, jitter=True, generator=ray_gen
+            seen, student_grid, rays, render_cfg, background, jitter=True, generator=ray_gen
         )
         pts = rays.origins[:, None, :] + out["t_mid"][..., None] * rays.directions[:, None, :]
         allow(pts.reshape(-1, 3)[out["weights"].reshape(-1) > 0])

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import time
 import uuid
@@ -10,11 +11,27 @@ from typing import Any
 
 from neoedit.errors import NeoError
 from neoedit.scene import Scene
+from neoedit.storage import find_store, resolve_scene_dir
+from neoedit.storage.store import NAME_RE
 from neoedit.utils.io import check_writable_output
 
 
 def check_output(parent_dir: Path, out: Path, overwrite: bool = False) -> None:
-    """Refuse to write an edit over its input version, or over any scene without --overwrite."""
+    """Refuse to write an edit over its input version, or over any scene without --overwrite;
+    in a scene store, over any version at all (a store's versions are never replaced)."""
+    parent_dir = resolve_scene_dir(parent_dir)
+    store = find_store(out)
+    if store is not None:
+        if Path(out).exists():
+            raise NeoError(
+                f"{out} already exists: versions in a scene store are never replaced "
+                "(choose another name)"
+            )
+        if not NAME_RE.match(Path(out).name):
+            raise NeoError(
+                f"{Path(out).name!r} is not a valid version name (letters, digits, _ . -)"
+            )
+        return
     if Path(out).resolve() == Path(parent_dir).resolve():
         raise NeoError(
             f"--out {out} is the input scene: an edit never overwrites the version it started from"
@@ -22,6 +39,13 @@ def check_output(parent_dir: Path, out: Path, overwrite: bool = False) -> None:
     if Path(out).exists() and not overwrite:
         raise NeoError(f"{out} already exists (choose another --out or pass --overwrite)")
     check_writable_output(out, [parent_dir], "scene", overwrite)  # only a scene is replaced
+
+
+def edit_lock(out: Path) -> contextlib.AbstractContextManager[None]:
+    """The writer lock of the store ``out`` goes into (held from the first check to the
+    save, so a second writer fails at once); nothing for a plain scene folder."""
+    store = find_store(out)
+    return store.lock() if store is not None else contextlib.nullcontext()
 
 
 def new_version(parent: Scene, record: dict[str, Any]) -> Scene:

@@ -35,6 +35,7 @@ from neoedit.edit.inpaint import Inpainter
 from neoedit.edit.language_update import LanguageEdit, LanguageUpdateConfig, update_language
 from neoedit.edit.refine import RefineConfig
 from neoedit.edit.remove import RemoveConfig, inpaint_removal, working_boxes
+from neoedit.edit.settle import settle
 from neoedit.edit.views import concat_cameras, virtual_cameras
 from neoedit.errors import NeoError
 from neoedit.fields.composed import ComposedField, EmptyField, MaskedField, TransformedField
@@ -46,6 +47,7 @@ from neoedit.scene import Scene
 from neoedit.utils.validate import check_edit_boxes
 
 METHODS = ("neo", "seal3d")
+STUDENTS = ("patch", "field")
 
 
 def _seal3d_default() -> DistillConfig:
@@ -88,6 +90,13 @@ class MoveConfig:
     field_only: bool = False
     """Distil with stage 1 only, for the whole budget (the ablation 'field distillation
     only')."""
+    student: str = "patch"
+    """'patch': the student is a new patch of the field that owns the edited regions (the
+    source box with the support under it, the target box), initialised from the current
+    weights; the rest of the scene stays bit-identical, so a chain of edits cannot wash it
+    out. 'field': the whole field is the student (updates limited to the table rows that
+    samples in the boxes read; earlier patches are baked in). The Seal-3D-style baseline
+    always distils the whole field, as Seal-3D does."""
 
 
 @dataclass
@@ -137,6 +146,8 @@ def move(
     (``parent`` is left unchanged)."""
     if cfg.method not in METHODS:
         raise NeoError(f"unknown method {cfg.method!r} (choose from {', '.join(METHODS)})")
+    if cfg.student not in STUDENTS:
+        raise NeoError(f"unknown student {cfg.student!r} (choose from {', '.join(STUDENTS)})")
     check_motions(parent, motions)
     t0 = time.perf_counter()
     sources = working_boxes(parent, [m.box for m in motions], cfg.remove)
@@ -159,7 +170,12 @@ def move(
     if cfg.preview:
         timings = _preview(child, sources, targets, transforms)
     else:
-        timings = _distil_move(parent, child, sources, targets, transforms, cfg, inpainter)
+        timings = settle(child, cfg.distill)  # a preview or cut parent: start from what it shows
+        start = parent
+        if timings:
+            start = Scene(copy.deepcopy(child.field), copy.deepcopy(child.grid), child.meta)
+            start.language, start.surface_points_m = parent.language, parent.surface_points_m
+        timings.update(_distil_move(start, child, sources, targets, transforms, cfg, inpainter))
     t = time.perf_counter()
     edit = LanguageEdit(sources, list(zip(targets, transforms, strict=True)))
     timings.update(update_language(parent, child, edit, cfg.language))
@@ -239,7 +255,9 @@ def _distil_move(
     # edited regions: the boxes, the removal patch's region, earlier patches being baked in
     below = cfg.remove.refine.below_m
     regions = [*(edit_region(s, below) for s in sources), *targets]
-    if isinstance(parent.field, PatchedField):
+    if isinstance(parent.field, PatchedField) and not (
+        cfg.student == "patch" and cfg.method == "neo"
+    ):  # a whole-field student bakes the earlier patches in
         regions += [b for region in parent.field.regions for b in region]
     teacher_grid = copy.deepcopy(parent.grid)
     refresh_grid(teacher_grid, teacher.density, cells_in_boxes(teacher_grid, regions))
@@ -261,7 +279,13 @@ def _distil_move(
         dcfg = dataclasses.replace(
             dcfg, field_steps=dcfg.field_steps + dcfg.render_steps, render_steps=0
         )
-    student = copy.deepcopy(_base(parent.field))
+    patch_mode = cfg.student == "patch" and cfg.method == "neo"
+    if patch_mode:
+        child.field = copy.deepcopy(parent.field)
+        student = child.patched().add_patch(regions[: len(sources) + len(targets)])
+        dcfg = dataclasses.replace(dcfg, local_rows=False)
+    else:
+        student = copy.deepcopy(_base(parent.field))
     timings["setup_s"] = round(time.perf_counter() - t, 2)
     t = time.perf_counter()
     if cfg.method == "seal3d":
@@ -290,12 +314,14 @@ def _distil_move(
         losses = distill(
             student, student_grid, teacher, teacher_grid, pool, regions,
             parent.meta.render, parent.background, dcfg,
+            view=child.field if patch_mode else None,
         )  # fmt: skip
     timings["distill_s"] = round(time.perf_counter() - t, 2)
     t = time.perf_counter()
-    child.field = student
+    if not patch_mode:
+        child.field = student
     child.grid = copy.deepcopy(parent.grid)
-    refresh_grid(child.grid, student.density, cells_in_boxes(child.grid, regions))
+    refresh_grid(child.grid, child.field.density, cells_in_boxes(child.grid, regions))
     timings["grid_s"] = round(time.perf_counter() - t, 2)
     timings.update({f"loss_{k}": round(v, 5) for k, v in losses.items()})
     return timings

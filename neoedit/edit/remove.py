@@ -29,6 +29,7 @@ from neoedit.edit.inpaint import Inpainter, make_inpainter
 from neoedit.edit.language_update import LanguageEdit, update_language
 from neoedit.edit.masks import grown_box, grown_box_clear_of
 from neoedit.edit.refine import RefineConfig, refine_removal
+from neoedit.edit.settle import settle
 from neoedit.edit.views import VirtualViewConfig, concat_cameras, virtual_cameras
 from neoedit.errors import NeoError
 from neoedit.fields.patched import edit_region
@@ -109,7 +110,8 @@ def remove(
         key = "cut_boxes" if cfg.removal == "resample" else "suppress_boxes"
         getattr(child.meta, key).extend(b.to_dict() for b in work)
     else:
-        timings = inpaint_removal(child, work, boxes, cfg, inpainter, strips)
+        timings = settle(child)  # a preview or cut parent: start from what it shows
+        timings.update(inpaint_removal(child, work, boxes, cfg, inpainter, strips))
         t = time.perf_counter()
         region = [edit_region(b, cfg.refine.below_m) for b in work]
         refresh_grid(child.grid, child.field.density, cells_in_boxes(child.grid, region))

@@ -1,0 +1,158 @@
+"""``neo log``, ``neo restore``, ``neo diff``: the versions of a scene store."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import tyro
+from rich.console import Console
+from rich.table import Table
+
+from neoedit.errors import NeoError
+
+console = Console()
+
+
+def _motion_text(record: dict[str, Any]) -> str:
+    """'+x,+y,+z m, yaw' of each moved object (from its 4x4 transforms and boxes)."""
+    parts = []
+    for t, b in zip(record.get("transforms", []), record.get("boxes", []), strict=False):
+        t = np.asarray(t, dtype=np.float64)
+        c = np.asarray(b["center"], dtype=np.float64)
+        shift = t[:3, :3] @ c + t[:3, 3] - c
+        yaw = math.degrees(math.atan2(t[1, 0], t[0, 0]))
+        parts.append(f"[{', '.join(f'{v:+.3f}' for v in shift)}] m {yaw:+.0f}°")
+    return "; ".join(parts)
+
+
+def _row(name: str, meta: dict[str, Any], parent: str, size: int | None) -> list[str]:
+    edits = meta.get("edits") or []
+    rec = edits[-1] if edits and edits[-1].get("version") == meta.get("version_id") else None
+    if rec is None:
+        what, prompt, motion, secs = "train", "", "", meta.get("train_seconds", 0.0)
+    else:
+        what = rec["type"] + (f" ({rec['method']})" if rec.get("method") else "")
+        if rec["type"] == "remove" and not rec.get("inpaint"):
+            what += " (cut)"
+        prompt, motion, secs = rec.get("prompt") or "box", _motion_text(rec), rec.get("seconds", 0)
+    mb = "" if size is None else f"{size / 1e6:.1f} MB"
+    return [name, meta.get("version_id", "?"), parent, what, prompt, motion, f"{secs:.0f} s", mb]
+
+
+@dataclass
+class LogCommand:
+    """The versions of a scene: name, id, parent, edit, prompt, motion, time, size (the
+    bytes that version added to its store). The current version of a store is marked *."""
+
+    scene: tyro.conf.Positional[Path]
+    """Scene store (or a single scene folder: its lineage of edits)."""
+
+    def run(self) -> None:
+        from neoedit.storage import SceneStore, is_store
+
+        cols = ["version", "id", "parent", "edit", "prompt", "motion", "time", "size"]
+        table = Table(*cols, title=str(self.scene))
+        if is_store(self.scene):
+            store = SceneStore(self.scene)
+            current, total = store.current, store.size_bytes()
+            for name in store.names():
+                info = store.info(name)
+                parent = info.manifest.get("parent") or (info.meta.get("parent") or "-")
+                mark = f"{name} *" if name == current else name
+                table.add_row(*_row(mark, info.meta, parent, info.manifest.get("bytes")))
+            console.print(table)
+            console.print(f"{len(store.names())} versions, {total / 1e6:.1f} MB in all")
+            return
+        from neoedit.scene import _read_meta
+
+        meta = _read_meta(Path(self.scene))
+        for rec in meta.edits:  # the lineage that led to this folder
+            fake = {"edits": [rec], "version_id": rec["version"]}
+            table.add_row(*_row("", fake, rec.get("parent") or "-", None))
+        table.add_row(*_row(str(self.scene), dataclasses.asdict(meta), meta.parent or "-", None))
+        console.print(table)
+
+
+@dataclass
+class RestoreCommand:
+    """Make an earlier version of a scene store current again (undo). Nothing is deleted:
+    later versions stay in the store and can be restored in turn."""
+
+    scene: tyro.conf.Positional[Path]
+    """Scene store."""
+    version: tyro.conf.Positional[str]
+    """Version name (e.g. step_2) or a prefix of its id."""
+
+    def run(self) -> None:
+        from neoedit.storage import SceneStore, is_store
+
+        if not is_store(self.scene):
+            raise NeoError(f"{self.scene} is not a scene store (neo plan --out makes one)")
+        store = SceneStore(self.scene)
+        name = store.find(self.version)
+        before = store.current
+        store.set_current(name)
+        console.print(f"{self.scene}: current version {before} -> {name}")
+
+
+@dataclass
+class DiffCommand:
+    """Render two versions of a scene store from the same cameras, side by side with their
+    difference (amplified 4x); writes OUT/diff.png and prints how much each view changed."""
+
+    scene: tyro.conf.Positional[Path]
+    """Scene store."""
+    a: tyro.conf.Positional[str]
+    """First version (name or id prefix)."""
+    b: tyro.conf.Positional[str]
+    """Second version."""
+    out: Path | None = None
+    """Output folder (default: outputs/diff/<store>_<a>_<b>)."""
+    views: int = 3
+    """Held-out scan views to render (training views when the scan has none)."""
+    overwrite: bool = False
+    """Replace OUT if it holds an earlier diff."""
+    device: str = "auto"
+
+    def run(self) -> None:
+        from neoedit.scene import load_scene
+        from neoedit.storage import SceneStore, is_store
+        from neoedit.utils.device import resolve_device
+        from neoedit.utils.io import (
+            atomic_directory,
+            atomic_write_json,
+            check_writable_output,
+            write_png,
+        )
+        from neoedit.viz.contact_sheet import tile_images
+        from neoedit.viz.versions import difference_image, pick_views, render_versions
+
+        if not is_store(self.scene):
+            raise NeoError(f"{self.scene} is not a scene store (neo plan --out makes one)")
+        if self.views < 1:
+            raise NeoError("--views must be >= 1")
+        store = SceneStore(self.scene)
+        a, b = store.find(self.a), store.find(self.b)
+        out = self.out or Path("outputs/diff") / f"{Path(self.scene).name}_{a}_{b}"
+        check_writable_output(out, [self.scene], "diff", self.overwrite)
+        device = resolve_device(self.device)
+        va, vb = load_scene(store.root / a, device), load_scene(store.root / b, device)
+        rows = render_versions([va, vb], pick_views(va, self.views))
+        tiles, labels, report = [], [], []
+        for k, (ia, ib) in enumerate(rows):
+            mse = float(np.mean((ia.astype(np.float64) - ib.astype(np.float64)) ** 2)) / 255**2
+            psnr = 10 * math.log10(1 / mse) if mse > 0 else float("inf")
+            report.append({"view": k, "psnr_a_vs_b": round(psnr, 2)})
+            tiles += [ia, ib, difference_image(ia, ib)]
+            labels += [a, b, f"|{a}-{b}| x4 ({psnr:.1f} dB)"]
+        with atomic_directory(out, overwrite=self.overwrite, kind="diff") as tmp:
+            write_png(tmp / "diff.png", tile_images(tiles, cols=3, labels=labels))
+            atomic_write_json(tmp / "diff.json", {"a": a, "b": b, "views": report})
+        for r in report:
+            console.print(f"view {r['view']}: {a} vs {b}: PSNR {r['psnr_a_vs_b']} dB")
+        console.print(f"wrote {out / 'diff.png'}")

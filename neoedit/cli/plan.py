@@ -1,0 +1,117 @@
+"""``neo plan``: apply an action plan step by step into a scene store."""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import tyro
+from rich.console import Console
+
+from neoedit.edit.plan import PlanConfig
+from neoedit.errors import NeoError
+from neoedit.language.localize import QueryConfig
+
+console = Console()
+
+
+@dataclass
+class PlanCommand:
+    """Apply a plan — a YAML list of moves and removals (see neoedit.edit.plan) — one step
+    after another, each step querying the version the previous one wrote. OUT becomes a
+    scene store: OUT/step_0 (the input), OUT/step_1 .. OUT/step_N (each a scene every verb
+    accepts, with report/before_after.png), and OUT/plan.png (the same views after every
+    step). A step whose prompt matches nothing stops the plan; the versions done so far stay."""
+
+    scene: tyro.conf.Positional[Path]
+    """Scene to start from (a scene folder, a store or a store version)."""
+    plan: tyro.conf.Positional[Path]
+    """Plan file (.yaml / .yml / .json)."""
+    out: Path
+    """New scene store to write (must not exist yet)."""
+    preview: bool = False
+    """Instant previews only: moves composed at render time, removals cut, no training."""
+    method: Literal["neo", "seal3d"] = "neo"
+    """How moves are distilled."""
+    edit: PlanConfig = dataclasses.field(default_factory=PlanConfig)
+    """Move and removal settings (--edit.move.distill.render-steps, --edit.remove.margin-m ...)."""
+    query: QueryConfig = dataclasses.field(default_factory=QueryConfig)
+    views: int = 3
+    """Held-out views in plan.png."""
+    device: str = "auto"
+
+    def run(self) -> None:
+        from neoedit.cli.edit import find_boxes
+        from neoedit.edit.plan import apply_action, load_plan, plan_boxes
+        from neoedit.edit.remove import write_report
+        from neoedit.language.localize import NoMatch
+        from neoedit.scene import load_scene, save_scene
+        from neoedit.storage import SceneStore
+        from neoedit.utils.device import resolve_device
+        from neoedit.utils.io import check_writable_output
+        from neoedit.viz.versions import pick_views, render_versions
+
+        actions = load_plan(self.plan)  # every step checked before any work
+        for a in actions:
+            plan_boxes(a)
+        if self.out.exists():
+            raise NeoError(f"{self.out} already exists: a plan writes a new scene store")
+        check_writable_output(self.out, [self.scene, self.plan], "store")
+        scene = load_scene(self.scene, resolve_device(self.device))
+        if scene.meta.language is None and any(a.prompt for a in actions):
+            raise NeoError("this scene has no language field: give the plan's steps a box")
+        cfg = dataclasses.replace(
+            self.edit,
+            preview=self.preview,
+            move=dataclasses.replace(self.edit.move, method=self.method),
+        )
+        store = SceneStore.create(self.out)
+        views = pick_views(scene, self.views)
+        columns = [render_versions([scene], views)]
+        names = ["step_0"]
+        with store.lock():
+            save_scene(self.out / "step_0", scene)
+            for k, action in enumerate(actions, 1):
+                try:
+                    boxes = plan_boxes(action) or find_boxes(
+                        scene, action.prompt, None, self.query, action.type
+                    )
+                except NoMatch as e:
+                    self._strip(columns, names)
+                    raise NeoError(
+                        f"step {k} ({action.label}): {e}; the plan stopped, versions "
+                        f"step_0 .. step_{k - 1} are in {self.out}"
+                    ) from None
+                child = apply_action(scene, action, boxes, cfg)
+                out = self.out / f"step_{k}"
+                report = functools.partial(_report, write_report, scene, child)
+                save_scene(out, child, extras=report)
+                rec = child.meta.edits[-1]
+                console.print(f"step {k}: {action.label} -> {out} in {rec['seconds']:.1f} s")
+                columns.append(render_versions([child], views))
+                names.append(f"step_{k}")
+                scene = child
+        self._strip(columns, names)
+        console.print(
+            f"wrote {self.out} ({len(names)} versions); pictures in {self.out / 'plan.png'}"
+        )
+
+    def _strip(self, columns: list[list[list[np.ndarray]]], names: list[str]) -> None:
+        """plan.png: one row per view, one column per version."""
+        from neoedit.utils.io import write_png
+        from neoedit.viz.contact_sheet import tile_images
+
+        tiles, labels = [], []
+        for v in range(len(columns[0])):
+            for name, col in zip(names, columns, strict=True):
+                tiles.append(col[v][0])
+                labels.append(name)
+        write_png(self.out / "plan.png", tile_images(tiles, cols=len(names), labels=labels))
+
+
+def _report(write_report, parent, child, folder: Path) -> None:  # type: ignore[no-untyped-def]
+    write_report(folder / "report", parent, child, [])

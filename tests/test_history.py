@@ -1,0 +1,274 @@
+"""Edit it many times: scene stores (deltas, restore, lock, interrupted writes), plans,
+chains of edits and batch moves."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from hypothesis import given
+from hypothesis import strategies as st
+from test_move import FAST, SPARSE_ARGS, _mean_density
+
+from neoedit.cameras.rays import CameraTensors
+from neoedit.cli import main
+from neoedit.edit.plan import parse_plan
+from neoedit.edit.relocate import Motion, MoveConfig, move
+from neoedit.edit.remove import RemoveConfig
+from neoedit.errors import NeoError
+from neoedit.geometry import OrientedBox, motion_about
+from neoedit.scene import load_scene, save_scene
+from neoedit.storage import SceneStore
+from neoedit.storage.blobs import decode, encode
+
+PLAN_FAST = [a.replace("--edit.", "--edit.move.") for a in FAST] + [
+    "--edit.remove.refine.steps", "30", "--edit.remove.refine.rounds", "1",
+    "--edit.remove.views.turns", "1",
+]  # fmt: skip
+
+
+# -- blobs: sparse deltas ---------------------------------------------------------------------
+
+
+@given(st.integers(0, 10_000), st.floats(1e-4, 10.0), st.integers(0, 2000))
+def test_delta_encoding_round_trips_what_it_stores(seed, scale, n_changed):
+    gen = torch.Generator().manual_seed(seed)
+    parent = {"t": torch.randn(40, 100, generator=gen), "n": torch.tensor([3])}
+    child = {k: v.clone() for k, v in parent.items()}
+    idx = torch.randperm(4000, generator=gen)[:n_changed]
+    child["t"].view(-1)[idx] += scale * torch.randn(n_changed, generator=gen)
+    child["new"] = torch.randn(7, generator=gen)
+    payload, entries, stored = encode(child, parent)
+    assert entries["n"]["enc"] == "same" and entries["new"]["enc"] == "full"
+    rebuilt = decode(payload, entries, parent, "test")
+    for k in child:  # what loads is exactly what encode said it stored ...
+        assert torch.equal(rebuilt[k], stored[k]), k
+    # ... and that is the child up to half-precision rounding of each change
+    err = (stored["t"] - child["t"]).abs()
+    assert bool((err <= (child["t"] - parent["t"]).abs() / 1024 + 1e-6).all())
+    if n_changed <= 800:  # a sparse change is stored as a delta, far smaller than in full
+        assert entries["t"]["enc"] in ("delta", "same")
+        assert sum(v.numel() * v.element_size() for v in payload.values()) < 4000 * 4 / 2
+
+
+# -- chains, plans, history ---------------------------------------------------------------------
+
+
+def _tensors(scene) -> dict[str, torch.Tensor]:
+    from neoedit.scene import _scene_groups
+
+    return {f"{g}/{k}": v for g, d in _scene_groups(scene).items() for k, v in d.items()}
+
+
+def _points_in(box: OrientedBox, n: int = 40000) -> torch.Tensor:
+    gen = torch.Generator().manual_seed(0)
+    u = (torch.rand(n, 3, generator=gen) - 0.5) * torch.tensor(box.size_m)
+    pts = u @ torch.tensor(box.rotation, dtype=torch.float32).T + torch.tensor(box.center_m)
+    return pts.float()
+
+
+def _mass_centroid(scene, pts: torch.Tensor) -> tuple[float, np.ndarray]:
+    """Mean rendered density over ``pts`` and its density-weighted centroid."""
+    with torch.no_grad():
+        w = scene.field.density(pts) * scene.grid.is_occupied(pts)
+    return float(w.mean()), ((w[:, None] * pts).sum(0) / w.sum()).numpy()
+
+
+def _write_plan(path: Path, steps: list[dict]) -> Path:
+    path.write_text(json.dumps(steps))
+    return path
+
+
+@pytest.fixture(scope="module")
+def chain(move_scene: Path, tmp_path_factory) -> Path:
+    """A plan of 3 edits on the tiny pick-and-place scene (a move, a fine move of 1.5 cm
+    and 4 degrees whose boxes overlap, a removal), then a step whose prompt matches nothing."""
+    root = tmp_path_factory.mktemp("chain")
+    plan = _write_plan(
+        root / "plan.json",
+        [
+            {"type": "move", "prompt": "red mug", "translate_m": [0.08, 0.04, 0.0], "yaw_deg": 30},
+            {"type": "move", "prompt": "red mug", "translate_m": [0.015, 0.0, 0.0], "yaw_deg": 4},
+            {"type": "remove", "prompt": "red mug"},
+            {"type": "move", "prompt": "purple elephant", "translate_m": [0.1, 0.0, 0.0]},
+        ],
+    )
+    args = ["plan", str(move_scene), str(plan), "--out", str(root / "store")]
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        assert main([*args, *PLAN_FAST, *SPARSE_ARGS]) == 2  # the last step stops the plan
+    (root / "stderr.txt").write_text(err.getvalue())
+    return root / "store"
+
+
+def test_plan_writes_a_chain_every_verb_accepts(chain: Path, move_scene: Path, capsys):
+    store = SceneStore(chain)
+    assert store.names() == ["step_0", "step_1", "step_2", "step_3"]  # kept before the stop
+    assert store.current == "step_3" and (chain / "plan.png").is_file()
+    message = " ".join((chain.parent / "stderr.txt").read_text().split())
+    assert "step 4 (move 'purple elephant')" in message and "the plan stopped" in message
+    first, fine = load_scene(chain / "step_1"), load_scene(chain / "step_2")
+    # the fine move: boxes overlap, the mug is whole at its new place, not doubled
+    src = OrientedBox.from_dict(fine.meta.edits[-1]["source_boxes"][0])
+    tgt = OrientedBox.from_dict(fine.meta.edits[-1]["target_boxes"][0])
+    assert OrientedBox.from_dict(fine.meta.edits[-1]["boxes"][0]).center_m[0] > 0.1
+    around = _points_in(src.grown(0.03))  # holds both boxes
+    (m0, c0), (m1, c1) = _mass_centroid(first, around), _mass_centroid(fine, around)
+    assert 0.5 < m1 / m0 < 1.6  # neither cut away nor doubled ...
+    shift = np.asarray(tgt.center_m) - np.asarray(src.center_m)
+    assert np.linalg.norm((c1 - c0)[:2] - shift[:2]) < 0.01  # ... and moved by 1.5 cm
+    removed = load_scene(chain)  # the store: its current version
+    assert _mean_density(removed, tgt) < 0.25 * _mean_density(fine, tgt)
+    # each step's base field is the original's, stored once: every edit is a patch
+    for name in ("step_1", "step_2", "step_3"):
+        entries = store.info(name).manifest["groups"]["field"]["tensors"]
+        assert entries["field.encoding.table"]["enc"] == "same"
+    # bounded storage: the chain costs less than two full copies of the scene beyond step_0
+    full = store.info("step_0").manifest["bytes"]
+    assert sum(store.info(n).manifest["bytes"] for n in store.names()) < 3 * full
+    # every verb takes a store version (and the store) as a scene
+    r = chain.parent / "render"
+    assert main(["render", str(chain / "step_2"), "--views", "eval", "--out", str(r)]) == 0
+    assert main(["query", str(chain / "step_1"), "red mug", "--views", "0", *SPARSE_ARGS]) == 0
+    assert main(["log", str(chain)]) == 0
+    assert "step_3 *" in capsys.readouterr().out
+
+
+def test_restore_is_bit_identical_and_keeps_later_versions(chain: Path, sim_root: Path):
+    store = SceneStore(chain)
+    before = _tensors(load_scene(chain / "step_1"))
+    # another edit into the store (from a store version), then undo to step_1
+    box = json.dumps(load_scene(chain / "step_1").meta.edits[-1]["target_boxes"][0])
+    (chain.parent / "box.json").write_text(box)
+    args = ["move", str(chain / "step_1"), "--box", str(chain.parent / "box.json")]
+    assert (
+        main([*args, "--translate", "0", "0.05", "0", "--preview", "--out", str(chain / "alt")])
+        == 0
+    )
+    assert store.current == "alt" and load_scene(chain).meta.moves
+    assert main(["restore", str(chain), "step_1"]) == 0
+    after = _tensors(load_scene(chain))
+    assert before.keys() == after.keys()
+    assert all(torch.equal(before[k], after[k]) for k in before)
+    assert {"alt", "step_3"} <= set(store.names())  # nothing lost
+    assert main(["restore", str(chain), "alt"]) == 0 and store.current == "alt"
+    # a store version is never replaced, even with --overwrite
+    assert (
+        main(
+            [
+                *args,
+                "--translate",
+                "0",
+                "0.05",
+                "0",
+                "--preview",
+                "--out",
+                str(chain / "alt"),
+                "--overwrite",
+            ]
+        )
+        == 2
+    )
+    diff = chain.parent / "diff"
+    assert main(["diff", str(chain), "step_0", "step_1", "--out", str(diff)]) == 0
+    assert (diff / "diff.png").is_file()
+    psnr = json.loads((diff / "diff.json").read_text())["views"][0]["psnr_a_vs_b"]
+    assert 10 < psnr < 60  # the two versions differ where the mug moved, and only there
+
+
+def test_a_killed_write_leaves_the_store_valid(chain: Path, tmp_path: Path):
+    import shutil
+
+    copy = tmp_path / "store"
+    shutil.copytree(chain, copy)
+    store = SceneStore(copy)
+    names, current = store.names(), store.current
+    scene = load_scene(copy / "step_1")
+    scene.meta.parent, scene.meta.version_id = scene.meta.version_id, "feedfeedfeed"
+
+    def crash(_folder: Path) -> None:
+        raise RuntimeError("killed while writing")
+
+    with pytest.raises(RuntimeError):
+        save_scene(copy / "step_9", scene, extras=crash)
+    assert store.names() == names and store.current == current
+    assert not (copy / "step_9").exists()
+    for n in names:  # every earlier version still loads
+        load_scene(copy / n)
+
+
+def test_a_second_writer_gets_a_clear_lock_error(chain: Path, capsys):
+    holder = textwrap.dedent(
+        f"""
+        import sys, time
+        from neoedit.storage import SceneStore
+        with SceneStore({str(chain)!r}).lock():
+            print("locked", flush=True)
+            sys.stdin.readline()
+        """
+    )
+    proc = subprocess.Popen(
+        [sys.executable, "-c", holder], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
+    )
+    try:
+        assert proc.stdout is not None and proc.stdout.readline().strip() == "locked"
+        assert main(["restore", str(chain), "step_0"]) == 2
+        err = " ".join(capsys.readouterr().err.split())
+        assert "is being written by another neo process (pid" in err
+    finally:
+        proc.communicate("\n", timeout=30)
+    assert main(["restore", str(chain), "step_0"]) == 0  # free again
+
+
+@pytest.mark.parametrize(
+    ("steps", "message"),
+    [
+        ([{"type": "rotate", "prompt": "mug"}], "type"),
+        ([{"type": "move", "prompt": "mug"}], "needs a motion"),
+        (
+            [{"type": "move", "prompt": "mug", "transform": np.diag([2, 2, 2, 1]).tolist()}],
+            "rigid",
+        ),
+        ([{"type": "remove", "prompt": "mug", "yaw_deg": 3}], "takes no motion"),
+        ([{"type": "remove"}], "either prompt or box"),
+        ([], "non-empty list"),
+    ],
+)
+def test_plan_errors_are_clear(steps, message, tmp_path: Path, capsys):
+    with pytest.raises(NeoError, match=message):
+        parse_plan(steps)
+    plan = _write_plan(tmp_path / "plan.json", steps)
+    assert main(["plan", str(tmp_path / "no_scene"), str(plan), "--out", str(tmp_path / "o")]) == 2
+    assert message in " ".join(capsys.readouterr().err.split()) and not (tmp_path / "o").exists()
+
+
+def test_batch_move_of_two_objects_moves_both(move_scene: Path, sim_root: Path):
+    objects = json.loads((sim_root / "pick_place_1" / "pre" / "objects.json").read_text())
+    boxes = [OrientedBox.from_dict(o["box"]) for o in objects["objects"]]
+    assert len(boxes) == 2
+    parent = load_scene(move_scene)
+    shift = [np.array([0.0, 0.12, 0.0]), np.array([0.1, 0.0, 0.0])]
+    motions = [
+        Motion(b, motion_about(np.array(b.center_m), s, 0.0))
+        for b, s in zip(boxes, shift, strict=True)
+    ]
+    cfg = MoveConfig(remove=RemoveConfig())
+    cfg.remove.refine.steps, cfg.remove.refine.rounds, cfg.remove.views.turns = 30, 1, 1
+    cfg.language.steps = 60
+    child = move(parent, motions, cfg, "red mug; soccer ball")
+    rec = child.meta.edits[-1]
+    assert len(rec["source_boxes"]) == 2 and len(child.field.patches) == 1  # one distillation
+    for src, tgt in zip(rec["source_boxes"], rec["target_boxes"], strict=True):
+        s, t = OrientedBox.from_dict(src), OrientedBox.from_dict(tgt)
+        assert _mean_density(child, s) < 0.5 * _mean_density(parent, s)
+        assert _mean_density(child, t) > 2 * _mean_density(parent, t)
+    cams = CameraTensors(child.scan_cameras()[0])
+    assert child.render_image(cams, 0, 48, 64)["rgb"].isfinite().all()
