@@ -19,10 +19,11 @@ $(STAMP): pyproject.toml
 
 # The end-to-end demo on embedded defaults: simulate, train (field + language), render,
 # evaluate, find the mug by name, remove it (a new version) and score that against the
-# post-removal scan.
+# post-removal scan, move it (preview and full), then run a 3-step plan into a scene store
+# (log, diff, undo).
 demo: $(STAMP)
 	$(VENV)/bin/neo sim scene examples/demo_scene.yaml --out $(DEMO_OUT)/sim --overwrite
-	rm -rf $(DEMO_OUT)/scene $(DEMO_OUT)/render $(DEMO_OUT)/eval_images $(DEMO_OUT)/query $(DEMO_OUT)/no_mug $(DEMO_OUT)/mug_preview $(DEMO_OUT)/mug_moved $(DEMO_OUT)/moved_render
+	rm -rf $(DEMO_OUT)/scene $(DEMO_OUT)/render $(DEMO_OUT)/eval_images $(DEMO_OUT)/query $(DEMO_OUT)/no_mug $(DEMO_OUT)/mug_preview $(DEMO_OUT)/mug_moved $(DEMO_OUT)/moved_render $(DEMO_OUT)/plan $(DEMO_OUT)/plan_diff
 	$(VENV)/bin/neo train $(DEMO_OUT)/sim/pre --out $(DEMO_OUT)/scene --max-steps 600 --eval-every 200
 	$(VENV)/bin/neo render $(DEMO_OUT)/scene --views spiral --n-frames 36 --video --out $(DEMO_OUT)/render
 	$(VENV)/bin/neo eval $(DEMO_OUT)/scene --data $(DEMO_OUT)/sim/pre --json $(DEMO_OUT)/eval.json --images $(DEMO_OUT)/eval_images
@@ -33,6 +34,10 @@ demo: $(STAMP)
 	$(VENV)/bin/neo move $(DEMO_OUT)/scene "mug" --translate -0.1 -0.1 0 --yaw 45 --out $(DEMO_OUT)/mug_moved
 	$(VENV)/bin/neo query $(DEMO_OUT)/mug_moved "mug" --json $(DEMO_OUT)/mug_moved_query.json --views 0
 	$(VENV)/bin/neo render $(DEMO_OUT)/mug_moved --views spiral --n-frames 24 --video --out $(DEMO_OUT)/moved_render
+	$(VENV)/bin/neo plan $(DEMO_OUT)/scene examples/demo_plan.yaml --out $(DEMO_OUT)/plan
+	$(VENV)/bin/neo log $(DEMO_OUT)/plan
+	$(VENV)/bin/neo diff $(DEMO_OUT)/plan step_0 step_3 --out $(DEMO_OUT)/plan_diff
+	$(VENV)/bin/neo restore $(DEMO_OUT)/plan step_2
 	@echo "contact sheets:  $(DEMO_OUT)/sim/*/contact_sheet.png"
 	@echo "spiral video:    $(DEMO_OUT)/render/video.gif"
 	@echo "held-out views (render | ground truth): $(DEMO_OUT)/eval_images/"
@@ -40,6 +45,7 @@ demo: $(STAMP)
 	@echo "mug removed (new version):     $(DEMO_OUT)/no_mug/report/before_after.png, vs post scan: $(DEMO_OUT)/no_mug_eval.json"
 	@echo "mug moved (preview / full):    $(DEMO_OUT)/mug_preview/report/before_after.png, $(DEMO_OUT)/mug_moved/report/before_after.png"
 	@echo "moved mug found by name:       $(DEMO_OUT)/mug_moved_query.json; spiral video: $(DEMO_OUT)/moved_render/video.gif"
+	@echo "a 3-step plan (scene store):   $(DEMO_OUT)/plan/plan.png, diff step_0 vs step_3: $(DEMO_OUT)/plan_diff/diff.png (current: step_2)"
 
 test: $(STAMP)
 	$(PY) -m pytest tests

@@ -65,14 +65,23 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("outputs/bench_chain"))
     parser.add_argument("--student", default="patch", choices=["patch", "field"])
     parser.add_argument("--views", type=int, default=6)
+    parser.add_argument(
+        "--measure-only", action="store_true", help="re-measure render time on the existing store"
+    )
     args = parser.parse_args()
     print("command: python " + " ".join(shlex.quote(a) for a in sys.argv))
     print(f"machine: {platform.machine()}, {platform.system()}, {time.strftime('%Y-%m-%d %H:%M')}")
     root = args.out / f"store_{args.student}"
+    data = load_scene_data(args.data)
+    if args.measure_only:
+        views = [int(i) for i in data.split["test"][: args.views]]
+        first = render_seconds(root / "step_0", data, views)
+        last = render_seconds(root / f"step_{len(CHAIN)}", data, views)
+        print(f"render s/view: v0 {first:.3f}, v10 {last:.3f}, ratio {last / first:.2f}")
+        return
     if root.exists():
         raise SystemExit(f"{root} exists: remove it to rerun")
     store = SceneStore.create(root)
-    data = load_scene_data(args.data)
     scene = load_scene(args.scene)
     cfg = PlanConfig()
     cfg.move = dataclasses.replace(cfg.move, student=args.student)

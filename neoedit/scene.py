@@ -219,8 +219,11 @@ def save_scene(
 
 
 def _sync_patches(scene: Scene) -> None:
-    """``meta.patches`` from the field (patches added since loading belong to this version)."""
-    if isinstance(scene.field, PatchedField):
+    """``meta.patches`` from the field (patches added since loading belong to this version;
+    a field an edit replaced by a plain one, e.g. a whole-field student, has none)."""
+    if not isinstance(scene.field, PatchedField):
+        scene.meta.patches = []
+    else:
         known = scene.meta.patches
         scene.meta.patches = [
             {

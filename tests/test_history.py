@@ -59,6 +59,18 @@ def test_delta_encoding_round_trips_what_it_stores(seed, scale, n_changed):
         assert sum(v.numel() * v.element_size() for v in payload.values()) < 4000 * 4 / 2
 
 
+def test_a_point_cloud_after_an_edit_is_stored_as_kept_rows_plus_new_rows():
+    gen = torch.Generator().manual_seed(0)
+    parent = {"pts": torch.randn(1000, 3, generator=gen)}
+    keep = torch.rand(1000, generator=gen) > 0.2
+    child = {"pts": torch.cat([parent["pts"][keep], torch.randn(50, 3, generator=gen)])}
+    payload, entries, stored = encode(child, parent)
+    assert entries["pts"]["enc"] == "rows" and payload["new/pts"].shape == (50, 3)
+    assert torch.equal(decode(payload, entries, parent, "test")["pts"], child["pts"])
+    shuffled = {"pts": child["pts"].flip(0)}  # not kept rows in order: stored in full
+    assert encode(shuffled, parent)[1]["pts"]["enc"] == "full"
+
+
 # -- chains, plans, history ---------------------------------------------------------------------
 
 
@@ -272,3 +284,49 @@ def test_batch_move_of_two_objects_moves_both(move_scene: Path, sim_root: Path):
         assert _mean_density(child, t) > 2 * _mean_density(parent, t)
     cams = CameraTensors(child.scan_cameras()[0])
     assert child.render_image(cams, 0, 48, 64)["rgb"].isfinite().all()
+
+
+def test_a_preview_plan_trains_nothing_and_each_step_sees_the_last(
+    move_scene: Path, tmp_path: Path
+):
+    plan = _write_plan(
+        tmp_path / "plan.json",
+        [
+            {"type": "move", "prompt": "red mug", "translate_m": [0.08, 0.04, 0.0], "yaw_deg": 30},
+            {"type": "remove", "prompt": "red mug"},
+        ],
+    )
+    out = tmp_path / "store"
+    assert (
+        main(["plan", str(move_scene), str(plan), "--out", str(out), "--preview", *SPARSE_ARGS])
+        == 0
+    )
+    moved, removed = load_scene(out / "step_1"), load_scene(out / "step_2")
+    assert moved.meta.moves and moved.meta.edits[-1]["method"] == "preview"
+    # step 2 queried the preview: the mug was found where step 1 put it
+    target = OrientedBox.from_dict(moved.meta.moves[0]["target"])
+    found = OrientedBox.from_dict(removed.meta.edits[-1]["boxes"][0])
+    assert np.linalg.norm(np.subtract(found.center_m, target.center_m)[:2]) < 0.03
+    assert removed.meta.cut_boxes and removed.meta.moves  # both render-time, nothing trained
+    for name in ("step_1", "step_2"):  # a preview stores no new field content
+        entries = SceneStore(out).info(name).manifest["groups"]["field"]["tensors"]
+        assert all(e["enc"] != "full" for k, e in entries.items() if k.startswith("field."))
+
+
+def test_a_whole_field_student_on_a_patched_version_saves_and_loads(chain: Path, tmp_path: Path):
+    """A move whose student is the whole field bakes the parent's patches in: the saved
+    version lists none (a stale list made it unloadable)."""
+    parent = load_scene(chain / "step_1")  # a patched version
+    assert isinstance(parent.field.patches, torch.nn.ModuleList) and len(parent.field.patches)
+    box = OrientedBox.from_dict(parent.meta.edits[-1]["target_boxes"][0])
+    cfg = MoveConfig(student="field")
+    cfg.remove.refine.steps, cfg.remove.refine.rounds, cfg.remove.views.turns = 30, 1, 1
+    cfg.language.steps = 60
+    child = move(
+        parent,
+        [Motion(box, motion_about(np.array(box.center_m), np.array([0.0, 0.06, 0.0]), 0.0))],
+        cfg,
+    )
+    save_scene(tmp_path / "v", child)
+    again = load_scene(tmp_path / "v")
+    assert not again.meta.patches and not hasattr(again.field, "patches")

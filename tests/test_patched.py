@@ -136,3 +136,29 @@ def test_patched_scene_round_trips(trained: Path, tmp_path: Path):
             TrainConfig(max_steps=scene.meta.step + 5, eval_every=0),
             resume=True,
         )
+
+
+@given(st.integers(0, 10_000), st.integers(1, 6))
+def test_the_cell_lookup_owner_equals_the_exact_box_tests(seed, n_boxes):
+    """ComposedField.owner skips points in cells no box touches; it must agree with testing
+    every point against every box."""
+    from neoedit.fields.composed import ComposedField, region_owner
+
+    rng = np.random.default_rng(seed)
+    aabb = torch.tensor([[-0.5, -0.5, -0.2], [0.5, 0.5, 0.4]])
+    regions = [
+        [
+            OrientedBox(
+                tuple(rng.uniform(-0.4, 0.4, 3)),
+                tuple(rng.uniform(0.01, 0.3, 3)),
+                float(rng.uniform(-180, 180)),
+            )
+        ]
+        for _ in range(n_boxes)
+    ]
+    comp = ComposedField(
+        RadianceField(CFG, aabb, seed=0), [(r, RadianceField(CFG, aabb, seed=1)) for r in regions]
+    )
+    pts = torch.as_tensor(rng.uniform(-0.5, 0.5, (5000, 3)), dtype=torch.float32)
+    pts[:, 2] = pts[:, 2] * 0.6 + 0.1
+    assert torch.equal(comp.owner(pts), region_owner(pts, regions))

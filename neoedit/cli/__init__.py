@@ -12,10 +12,11 @@ from rich.console import Console
 from neoedit.cli.data import InfoCommand
 from neoedit.cli.edit import MoveCommand, RemoveCommand
 from neoedit.cli.field import EvalCommand, RenderCommand, TrainCommand
+from neoedit.cli.grasp import GraspCommand
 from neoedit.cli.history import DiffCommand, LogCommand, RestoreCommand
 from neoedit.cli.language import QueryCommand
 from neoedit.cli.plan import PlanCommand
-from neoedit.cli.sim import SimBenchmarkCommand, SimSceneCommand
+from neoedit.cli.sim import SimBenchmarkCommand, SimExecuteCommand, SimSceneCommand
 from neoedit.errors import NeoError
 from neoedit.utils.validate import check_device, user_message
 
@@ -23,6 +24,7 @@ SimCommands = Annotated[
     Union[  # noqa: UP007 (tyro reads the Union)
         Annotated[SimSceneCommand, tyro.conf.subcommand("scene")],
         Annotated[SimBenchmarkCommand, tyro.conf.subcommand("benchmark")],
+        Annotated[SimExecuteCommand, tyro.conf.subcommand("execute")],
     ],
     tyro.conf.subcommand(
         "sim", description="Simulated tabletop scans before/after manipulation (NEO-Sim)."
@@ -39,6 +41,7 @@ Commands = Union[  # noqa: UP007
     Annotated[RemoveCommand, tyro.conf.subcommand("remove")],
     Annotated[MoveCommand, tyro.conf.subcommand("move")],
     Annotated[PlanCommand, tyro.conf.subcommand("plan")],
+    Annotated[GraspCommand, tyro.conf.subcommand("grasp")],
     Annotated[LogCommand, tyro.conf.subcommand("log")],
     Annotated[RestoreCommand, tyro.conf.subcommand("restore")],
     Annotated[DiffCommand, tyro.conf.subcommand("diff")],

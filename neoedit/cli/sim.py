@@ -128,3 +128,39 @@ class SimBenchmarkCommand:
             target = self.out / spec.name
             if target.exists() and output_kind(target) != "sim":
                 check_writable_output(target, [], "sim", self.overwrite)
+
+
+@dataclass
+class SimExecuteCommand:
+    """Execute one move of a NEO-Sim scene with a planned grasp: the simulated Panda reaches
+    the grasp along its approach, closes, lifts, carries the object by the action's
+    transform, places it and retreats; the outcome is scanned with the scene's cameras
+    (OUT/scan, a dataset `neo eval` takes) and reported in OUT/execution.json (success, the
+    stage that failed and why, placement error). Exit status 1 when the execution fails."""
+
+    scene: tyro.conf.Positional[Path]
+    """NEO-Sim scene folder (scene.json + scans)."""
+    action: int
+    """Which action (1-based) to execute; earlier ones are replayed as simulated."""
+    grasp: Path
+    """Grasp JSON from `neo grasp --json` (a list: the first is used, or one grasp)."""
+    out: Path
+    """Output folder (scan/ and execution.json)."""
+    overwrite: bool = False
+
+    def run(self) -> None:
+        from neoedit.sim.execute import ExecuteConfig, execute_action
+
+        try:
+            raw = json.loads(self.grasp.read_text())
+        except (OSError, ValueError) as e:
+            raise NeoError(f"{self.grasp}: cannot read a grasp: {e}") from None
+        grasp = raw[0] if isinstance(raw, list) and raw else raw
+        if not isinstance(grasp, dict) or not {"position_m", "rotation"} <= grasp.keys():
+            raise NeoError(f"{self.grasp}: expected a grasp with position_m and rotation")
+        check_writable_output(self.out, [self.scene, self.grasp], "execution", self.overwrite)
+        ex = execute_action(self.scene, self.action, grasp, self.out, ExecuteConfig())
+        if not ex.success:
+            console.print(f"[bold red]execution failed at {ex.stage}: {ex.cause}[/]")
+            raise SystemExit(1)
+        console.print(f"executed action {self.action}; outcome scanned into {self.out / 'scan'}")

@@ -52,11 +52,23 @@ class TransformedField(nn.Module):
 
 def region_owner(points: torch.Tensor, regions: Sequence[Sequence[OrientedBox]]) -> torch.Tensor:
     """(N,) int64: index of the last region (a list of boxes) holding each point, -1 for
-    none: later regions take precedence where they overlap."""
+    none: later regions take precedence where they overlap. Points outside the axis-aligned
+    bounds of every box (most samples: edits are small) skip the per-box tests."""
     who = torch.full((len(points),), -1, dtype=torch.long, device=points.device)
-    for i, region in enumerate(regions):
-        for box in region:
-            who[points_in_box(points, box)] = i
+    boxes = [(i, box) for i, region in enumerate(regions) for box in region]
+    if not boxes or not len(points):
+        return who
+    corners = np.concatenate([b.corners() for _, b in boxes])
+    lo = torch.as_tensor(corners.min(0), dtype=points.dtype, device=points.device)
+    hi = torch.as_tensor(corners.max(0), dtype=points.dtype, device=points.device)
+    near = torch.nonzero(((points >= lo) & (points <= hi)).all(-1)).squeeze(1)
+    if not len(near):
+        return who
+    sub = points[near]
+    sub_who = who[near]
+    for i, box in boxes:
+        sub_who[points_in_box(sub, box)] = i
+    who[near] = sub_who
     return who
 
 
@@ -75,16 +87,53 @@ class ComposedField(nn.Module):
         return self.base.aabb
 
     def owner(self, points: torch.Tensor) -> torch.Tensor:
-        """(N,) index of the part answering for each point, -1 for the base."""
-        return region_owner(points, self.regions)
+        """(N,) index of the part answering for each point, -1 for the base. A coarse grid
+        of the cells any region touches sends only the points in those cells to the exact
+        box tests, so rendering costs little more with many edits."""
+        who = torch.full((len(points),), -1, dtype=torch.long, device=points.device)
+        if not self.regions or not len(points):
+            return who
+        cells = self._touched_cells(points.device)
+        lo, hi = self.aabb[0].to(points), self.aabb[1].to(points)
+        n = cells.shape[0]
+        ijk = ((points - lo) / (hi - lo) * n).long().clamp_(0, n - 1)
+        near = torch.nonzero(cells[ijk[:, 0], ijk[:, 1], ijk[:, 2]]).squeeze(1)
+        if len(near):
+            who[near] = region_owner(points[near], self.regions)
+        return who
+
+    def _touched_cells(self, device: torch.device, n: int = 64) -> torch.Tensor:
+        """(n,n,n) bool: the cells of the scene box that meet a region's box (cached until
+        the regions change)."""
+        key = (len(self.regions), sum(len(r) for r in self.regions), str(device))
+        cached = getattr(self, "_cells", None)
+        if cached is not None and cached[0] == key:
+            return cached[1]
+        lo, hi = self.aabb[0].to(device), self.aabb[1].to(device)
+        size = (hi - lo) / n
+        axes = [lo[k] + size[k] * (torch.arange(n, device=device) + 0.5) for k in range(3)]
+        centres = torch.stack(torch.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+        reach = float(torch.linalg.norm(size)) / 2  # a cell meets a box grown by this
+        touched = torch.zeros(len(centres), dtype=torch.bool, device=device)
+        for region in self.regions:
+            for box in region:
+                touched |= points_in_box(centres, box.grown(reach))
+        cells = touched.reshape(n, n, n)
+        self._cells = (key, cells)
+        return cells
 
     def _members(self, points: torch.Tensor) -> Iterator[tuple[Field, torch.Tensor]]:
         """(field, indices of its points) for every field that answers for some points."""
         who = self.owner(points)
-        for k, f in [(-1, self.base), *enumerate(self.parts)]:
-            idx = torch.nonzero(who == k).squeeze(1)
-            if len(idx):
-                yield f, idx  # type: ignore[misc]
+        edited = who >= 0
+        base = torch.nonzero(~edited).squeeze(1)
+        if len(base):
+            yield self.base, base
+        idx = torch.nonzero(edited).squeeze(1)
+        if not len(idx):
+            return
+        for k in torch.unique(who[idx]).tolist():
+            yield self.parts[k], idx[who[idx] == k]  # type: ignore[misc]
 
     def density(self, points: torch.Tensor) -> torch.Tensor:
         """sigma (N,) [1/m] at world points (N,3)."""

@@ -175,12 +175,11 @@ def localize(
     labels = db.labels_
     if (labels >= 0).sum() == 0:
         raise NoMatch(prompt, best, cfg.threshold, too_few)
-    largest = np.bincount(labels[labels >= 0]).argmax()
     # the box is fitted to the cluster's core points: sparse stragglers at its rim (floaters,
     # silhouette pixels whose depth hit the table behind) would inflate it
     core = np.zeros(len(sel), bool)
     core[db.core_sample_indices_] = True
-    members = sel[(labels == largest) & core]
+    members = sel[(labels == best_cluster(labels, core, rel[sel], cfg.min_cluster_points)) & core]
     if len(members) < cfg.min_cluster_points:
         raise NoMatch(prompt, best, cfg.threshold, too_few)
     cluster = points_m[members]
@@ -190,6 +189,22 @@ def localize(
     if support is not None:
         box = box.extended_down(support)
     return QueryResult(prompt, box, float(np.median(rel[members])), best, cluster)
+
+
+def best_cluster(labels: np.ndarray, core: np.ndarray, rel: np.ndarray, min_points: int) -> int:
+    """The cluster the prompt names best: the highest median relevancy of its core points
+    among clusters of at least ``min_points`` core points (else the largest). Two objects
+    whose names embed alike ("orange cube", "green cube") both pass the relevancy cut; the
+    larger one is not the better match."""
+    ids = np.unique(labels[labels >= 0])
+    sizes = np.array([int(((labels == k) & core).sum()) for k in ids])
+    if not (sizes >= min_points).any():
+        return int(ids[np.argmax(sizes)])
+    medians = [
+        float(np.median(rel[(labels == k) & core])) if n >= min_points else -np.inf
+        for k, n in zip(ids, sizes, strict=True)
+    ]
+    return int(ids[int(np.argmax(medians))])
 
 
 def query_scene(

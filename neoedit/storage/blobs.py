@@ -10,6 +10,8 @@ therefore written as, per tensor, one of
   precision's range). The change is rounded *before* it is stored and the version is
   exactly what the blob reconstructs (``parent + half(change)``), so loading it again is
   bit-identical. The rounding error is below 1/2048 of each change;
+* ``rows``: the parent's rows kept (a packed mask) followed by new rows (a query point
+  cloud after an edit drops the points in the edited boxes and appends re-rendered ones);
 * ``full``: the tensor itself (new tensors, integer tensors, and whenever the delta would
   not be at least twice smaller).
 
@@ -59,6 +61,21 @@ def _apply(ref: torch.Tensor, mask: torch.Tensor, values: torch.Tensor) -> torch
     return out.reshape(ref.shape)
 
 
+def _rows(x: torch.Tensor, ref: torch.Tensor) -> torch.Tensor | None:
+    """The packed mask of ``ref``'s rows that ``x`` starts with, in order, when ``x`` is
+    ``ref[mask]`` followed by new rows (a query cloud after an edit); None otherwise."""
+    if x.dim() != 2 or ref.dim() != 2 or x.shape[1] != ref.shape[1] or x.dtype != ref.dtype:
+        return None
+    as_rows = np.dtype((np.void, x.shape[1] * x.element_size()))
+    xr = np.ascontiguousarray(x.numpy()).view(as_rows).ravel()
+    rr = np.ascontiguousarray(ref.numpy()).view(as_rows).ravel()
+    keep = np.isin(rr, xr)
+    n = int(keep.sum())
+    if n == 0 or n > len(xr) or not np.array_equal(xr[:n], rr[keep]):
+        return None
+    return torch.from_numpy(np.packbits(keep))
+
+
 def _candidates(name: str, parent: Mapping[str, torch.Tensor]) -> list[str]:
     """Parent tensors a tensor may be stored against: its own name first, then (for a new
     patch) the same parameter of the base field and of every earlier patch."""
@@ -90,7 +107,14 @@ def encode(
             d = _delta(t, ref) if floating else None
             if d is not None and (best is None or d[1].numel() < best[0]):
                 best = (d[1].numel(), ref_name, d)
-        if best is None:
+        rows = _rows(t, parent[name]) if parent is not None and name in parent else None
+        if best is None and rows is not None:
+            ref = parent[name]  # type: ignore[index]
+            n = int(np.unpackbits(rows.numpy(), count=len(ref)).sum())
+            payload[f"rows/{name}"], payload[f"new/{name}"] = rows, t[n:].contiguous()
+            entries[name] = {"enc": "rows", "ref": name}
+            stored[name] = t
+        elif best is None:
             payload[f"full/{name}"] = t
             entries[name] = {"enc": "full"}
             stored[name] = t
@@ -126,6 +150,9 @@ def decode(
                 out[name] = ref
             elif enc == "delta":
                 out[name] = _apply(ref, payload[f"mask/{name}"], payload[f"values/{name}"])
+            elif enc == "rows":
+                keep = np.unpackbits(payload[f"rows/{name}"].numpy(), count=len(ref)).astype(bool)
+                out[name] = torch.cat([ref[torch.from_numpy(keep)], payload[f"new/{name}"]])
             else:
                 raise NeoError(f"{where}: unknown tensor encoding {enc!r} for {name}")
         except KeyError as missing:

@@ -25,6 +25,7 @@ from neoedit.rendering.occupancy import OccupancyGridConfig
 from neoedit.rendering.renderer import RenderConfig, render_image, render_rays
 from neoedit.rendering.volume import distortion_loss, opacity_penalty
 from neoedit.scene import Scene, SceneMeta, load_optimizer_state, load_scene, save_scene
+from neoedit.storage import find_store, is_store
 from neoedit.utils.device import resolve_device
 from neoedit.utils.optim import field_param_groups, make_adam
 from neoedit.utils.progress import make_progress
@@ -280,6 +281,11 @@ def train(
     Then, when ``language`` is enabled and the data has a teacher (instance masks + names, or
     a CLIP checkpoint), the language field is trained on the frozen geometry and saved too."""
     dev = resolve_device(device)
+    if is_store(Path(out)) or find_store(Path(out)) is not None:
+        raise NeoError(
+            f"{out} is (in) a scene store: training writes a plain scene folder; train there "
+            "and start a store from it with neo plan"
+        )
     torch.manual_seed(cfg.seed)
     data = load_scene_data(data_path)
     if cfg.sparsity_loss_weight < 0:

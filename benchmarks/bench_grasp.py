@@ -1,0 +1,152 @@
+"""Predict, then act: grasps planned on NEO versions, executed by the simulated Panda, and
+the executed outcome compared with the predicted version.
+
+    python benchmarks/bench_grasp.py --out outputs/bench_grasp
+
+Per object (NEO-Sim pick_place_1-4 and the 4 assembly steps): the object is found by name on
+the version *before* the move (for assembly steps 2-4 an edited version), grasps are planned
+on it (`neo grasp`), the top-1 and then up to the top-5 are executed in the scene's PyBullet
+world (replaying earlier steps), and the first successful execution is scanned with the
+scene's cameras. Figures: top-1 / top-5 success, planning time, placement error (position,
+yaw) against the intended transform, and PSNR (Full, In) of the predicted version (`neo
+move`'s output) against the executed outcome's held-out views. The same sampler on the
+simulator's geometry (convex hulls of each object's vertices + the table slab) is the upper
+bound row ("truth geometry").
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import shlex
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from scipy.spatial import Delaunay
+
+from neoedit.data import load_scene_data
+from neoedit.eval.evaluate import evaluate
+from neoedit.geometry import OrientedBox
+from neoedit.grasp import GraspConfig, plan_grasps
+from neoedit.grasp.antipodal import scene_density
+from neoedit.language.localize import query_scene
+from neoedit.language.text import load_text_encoder
+from neoedit.scene import load_scene
+from neoedit.sim.execute import ExecuteConfig, execute_action
+from neoedit.sim.spec import scene_spec_from_dict
+from neoedit.sim.world import SimWorld
+
+
+def truth_density(scene_dir: Path, step: int):  # type: ignore[no-untyped-def]
+    """Density of the simulator's geometry before action ``step``: convex hulls of every
+    object's vertices, and the table top as a slab."""
+    meta = json.loads((scene_dir / "scene.json").read_text())
+    spec = scene_spec_from_dict(meta["spec"])
+    with SimWorld(spec) as world:
+        for a in spec.actions[: step - 1]:
+            if a.type == "remove":
+                world.remove(a.object)
+            else:
+                world.move(a.object, a.translate_m, a.yaw_deg)
+        hulls = [Delaunay(world.object_vertices_world_for(b)) for b in world.bodies.values()]
+
+    def density(points: torch.Tensor) -> torch.Tensor:
+        p = points.numpy().astype(np.float64)
+        inside = p[:, 2] <= 0.0
+        for h in hulls:
+            inside |= h.find_simplex(p) >= 0
+        return torch.as_tensor(inside, dtype=torch.float32) * 2000.0
+
+    return density
+
+
+def attempt(scene_dir: Path, step: int, grasps: list, out: Path) -> dict:
+    """Execute the top grasps in order until one succeeds."""
+    tries = []
+    for rank, g in enumerate(grasps[:5]):
+        folder = out / f"attempt_{rank}"
+        ex = execute_action(scene_dir, step, g.to_dict(), folder, ExecuteConfig())
+        record = json.loads((folder / "execution.json").read_text())
+        tries.append({"rank": rank, "stage": ex.stage, "cause": ex.cause, **record})
+        if ex.success:
+            return {"top1": rank == 0, "top5": True, "tries": tries, "scan": str(folder / "scan")}
+    return {"top1": False, "top5": False, "tries": tries, "scan": None}
+
+
+def run_object(name: str, scene_dir: Path, step: int, before, predicted, args) -> dict:  # type: ignore[no-untyped-def]
+    action = json.loads((scene_dir / "scene.json").read_text())["actions"][step - 1]
+    text = load_text_encoder(before.meta.language.text)
+    box = query_scene(before, action["object"], text).box
+    row: dict = {"object": action["object"]}
+    for label, density in (
+        ("neo", scene_density(before)),
+        ("truth geometry", truth_density(scene_dir, step)),
+    ):
+        t0 = time.perf_counter()
+        grasps = plan_grasps(density, box, GraspConfig(), top_k=5)
+        seconds = time.perf_counter() - t0
+        out = args.out / name / label.replace(" ", "_")
+        res = (
+            attempt(scene_dir, step, grasps, out)
+            if grasps
+            else {"top1": False, "top5": False, "tries": [], "scan": None}
+        )
+        res["plan_s"] = round(seconds, 2)
+        res["n_grasps"] = len(grasps)
+        if res["scan"] is not None and label == "neo":
+            done = res["tries"][-1]
+            res["placement_error"] = done.get("placement_error")
+            target = OrientedBox.from_dict(action["target_box"])
+            data = load_scene_data(Path(res["scan"]))
+            m = evaluate(predicted, data, "test", [], [target], max_views=args.views)
+            res["prediction_vs_outcome"] = {"full": m["full"]["psnr"], "in": m["in"]["psnr"]}
+        row[label] = res
+        print(
+            f"{name:24s} {label:15s} grasps {len(grasps)}  top1 {res['top1']}  top5 {res['top5']}  "
+            f"plan {seconds:.1f} s  {res.get('placement_error', '')}  {res.get('prediction_vs_outcome', '')}",
+            flush=True,
+        )
+    return row
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--out", type=Path, default=Path("outputs/bench_grasp"))
+    parser.add_argument("--views", type=int, default=6)
+    parser.add_argument("--scenes", nargs="+", default=[f"pick_place_{k}" for k in range(1, 5)])
+    args = parser.parse_args()
+    print("command: python " + " ".join(shlex.quote(a) for a in sys.argv))
+    print(f"machine: {platform.machine()}, {platform.system()}, {time.strftime('%Y-%m-%d %H:%M')}")
+    args.out.mkdir(parents=True, exist_ok=True)
+    results = {}
+    for name in args.scenes:
+        before = load_scene(Path("outputs/bench_language") / f"{name}_pre")
+        predicted = load_scene(Path("outputs/bench_move_patch") / name / "neo")
+        results[name] = run_object(
+            name, Path("outputs/neosim_standard") / name, 1, before, predicted, args
+        )
+    store = Path("outputs/bench_assembly/neo_store")
+    for k in range(1, 5):
+        if not (store / f"step_{k}").is_dir():
+            break
+        before, predicted = load_scene(store / f"step_{k - 1}"), load_scene(store / f"step_{k}")
+        name = f"assembly_step_{k}"
+        results[name] = run_object(
+            name, Path("outputs/neosim_asm/assembly"), k, before, predicted, args
+        )
+    (args.out / "results.json").write_text(json.dumps(results, indent=1, default=str))
+    for label in ("neo", "truth geometry"):
+        rows = [r[label] for r in results.values()]
+        print(
+            f"{label}: top-1 {sum(r['top1'] for r in rows)}/{len(rows)}, "
+            f"top-5 {sum(r['top5'] for r in rows)}/{len(rows)}, "
+            f"plan {np.mean([r['plan_s'] for r in rows]):.1f} s"
+        )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,104 @@
+"""``neo grasp``: parallel-jaw grasps of an object named by a prompt, on any version."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import tyro
+from rich.console import Console
+
+from neoedit.errors import NeoError
+from neoedit.grasp import GraspConfig
+from neoedit.language.localize import QueryConfig
+
+console = Console()
+
+
+@dataclass
+class GraspCommand:
+    """Plan parallel-jaw grasps (Franka hand) for the object a prompt names, on the scene's
+    own field: antipodal contact pairs in a friction cone, checked for collisions against
+    the whole scene. Prints the grasps as JSON (best first) and draws them over a render in
+    OUT/grasps.png. No collision-free grasp: a message and exit status 1."""
+
+    scene: tyro.conf.Positional[Path]
+    """Scene folder, store or store version."""
+    prompt: tyro.conf.Positional[str | None] = None
+    """What to grasp, e.g. "red mug"; or use --box."""
+    box: Path | None = None
+    """JSON box file instead of a prompt."""
+    top: int = 5
+    """How many grasps to keep."""
+    json: Path | None = None
+    """Also write the grasps (a list, best first) to this file."""
+    out: Path | None = None
+    """Folder for grasps.png (default: outputs/grasp/<scene name>)."""
+    grasp: GraspConfig = dataclasses.field(default_factory=GraspConfig)
+    query: QueryConfig = dataclasses.field(default_factory=QueryConfig)
+    overwrite: bool = False
+    """Replace OUT if it holds an earlier grasp picture."""
+    device: str = "auto"
+
+    def run(self) -> None:
+        from neoedit.cli.edit import find_boxes
+        from neoedit.grasp.antipodal import plan_grasps, scene_density
+        from neoedit.scene import load_scene
+        from neoedit.utils.device import resolve_device
+        from neoedit.utils.io import atomic_write_json, check_writable_output
+
+        if (self.prompt is None) == (self.box is None):
+            raise NeoError('give either a prompt ("red mug") or --box BOX.json, not both')
+        if self.top < 1:
+            raise NeoError("--top must be >= 1")
+        if not (0 < self.grasp.friction < 10):
+            raise NeoError("--grasp.friction must be in (0, 10)")
+        out = self.out or Path("outputs/grasp") / Path(self.scene).name
+        check_writable_output(out, [self.scene], "grasp", self.overwrite)
+        if self.json is not None:
+            check_writable_output(self.json, [self.scene], "json", overwrite=True)
+        scene = load_scene(self.scene, resolve_device(self.device))
+        box = find_boxes(scene, self.prompt, self.box, self.query, "grasp")[0]
+        t0 = time.perf_counter()
+        grasps = plan_grasps(scene_density(scene), box, self.grasp, self.top)
+        seconds = time.perf_counter() - t0
+        if not grasps:
+            console.print(
+                f"[bold red]no collision-free grasp of {self.prompt or 'the box'} "
+                f"(planned in {seconds:.1f} s): the object may be wider than the "
+                f"{self.grasp.gripper.max_width_m * 100:.0f} cm opening, or boxed in[/]"
+            )
+            raise SystemExit(1)
+        records = [g.to_dict() for g in grasps]
+        console.print_json(json.dumps(records))
+        console.print(f"{len(grasps)} grasps in {seconds:.1f} s")
+        self._picture(scene, box, grasps, out)
+        if self.json is not None:
+            atomic_write_json(self.json, records)
+
+    def _picture(self, scene, box, grasps, out: Path) -> None:  # type: ignore[no-untyped-def]
+        from neoedit.cameras.rays import CameraTensors
+        from neoedit.utils.io import atomic_directory, write_png
+        from neoedit.viz.boxes import draw_box
+        from neoedit.viz.contact_sheet import tile_images
+        from neoedit.viz.grasps import draw_grasps, facing_view
+
+        cameras, _, split = scene.scan_cameras()
+        cameras = cameras.scaled(min(2.0, 480.0 / float(np.max(cameras.width))))
+        pool = np.asarray(split.get("train", np.arange(len(cameras))))
+        first = facing_view(cameras, pool, np.asarray(box.center_m))
+        views = [first, int(pool[(list(pool).index(first) + len(pool) // 3) % len(pool)])]
+        cams = CameraTensors(cameras, scene.field.aabb.device)
+        tiles = []
+        for i in views:
+            h, w = int(cameras.height[i]), int(cameras.width[i])
+            rgb = scene.render_image(cams, i, h, w)["rgb"].clamp(0, 1).cpu().numpy()
+            img = draw_box((rgb * 255).round().astype(np.uint8), cameras, i, box, (90, 90, 255), 1)
+            tiles.append(draw_grasps(img, cameras, i, grasps, self.grasp.gripper))
+        with atomic_directory(out, overwrite=self.overwrite, kind="grasp") as tmp:
+            write_png(tmp / "grasps.png", tile_images(tiles, cols=len(tiles)))
+        console.print(f"wrote {out / 'grasps.png'}")

@@ -1,0 +1,270 @@
+"""A simulated Panda that executes a pick-and-place: reach a planned grasp along its
+approach, close, lift, carry the object by a world transform, place, release, retreat.
+
+Every stage reports why it failed (unreachable pose, collision on the approach, object not
+held or slipped), so a prediction can be checked against what a robot really does. The
+KUKA setup is not supported: pybullet_data's iiwa model has no gripper.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pybullet as pb
+
+from neoedit.errors import NeoError
+from neoedit.sim.world import PHYSICS_HZ, SimWorld
+
+EE_LINK = "panda_grasptarget"
+
+
+@dataclass
+class ExecuteConfig:
+    pregrasp_m: float = 0.10
+    """The hand starts this far back along the approach."""
+    lift_m: float = 0.10
+    """Lift height after closing (and while carrying)."""
+    ee_offset_m: float = 0.008
+    """The hand's grasp target sits this far beyond the grasp centre along the approach
+    (the planner's centre is short of the fingertips)."""
+    segment_s: float = 1.0
+    """Duration of each straight motion."""
+    hold_s: float = 1.0
+    """Hold after lifting (the success check), then a short shake."""
+    grip_force_n: float = 60.0
+    reach_tolerance_m: float = 0.01
+    """An arm that ends farther than this from a waypoint could not reach it."""
+
+
+@dataclass
+class Execution:
+    success: bool
+    stage: str
+    """The last stage reached: reach, approach, close, lift, carry, place, retreat, done."""
+    cause: str = ""
+    transform: np.ndarray | None = None
+    """Realised world transform of the object (new pose = T @ old), when it was placed."""
+    log: list[str] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, Any]:
+        t = None if self.transform is None else np.round(self.transform, 6).tolist()
+        return {"success": self.success, "stage": self.stage, "cause": self.cause, "transform": t}
+
+
+class PandaArm:
+    """The Panda of a :class:`SimWorld` driven by position control and inverse kinematics."""
+
+    def __init__(self, world: SimWorld, cfg: ExecuteConfig):
+        self.world, self.cfg, self.c, self.robot = world, cfg, world.client, world.robot
+        names = {
+            pb.getJointInfo(self.robot, j, physicsClientId=self.c)[12].decode(): j
+            for j in range(pb.getNumJoints(self.robot, physicsClientId=self.c))
+        }
+        if EE_LINK not in names:
+            raise NeoError(
+                "the scene's robot has no parallel gripper (pybullet_data's KUKA iiwa model has "
+                "none): execution needs the Panda setup"
+            )
+        self.ee = names[EE_LINK]
+        self.fingers = [names["panda_leftfinger"], names["panda_rightfinger"]]
+        movable = [
+            j
+            for j in range(pb.getNumJoints(self.robot, physicsClientId=self.c))
+            if pb.getJointInfo(self.robot, j, physicsClientId=self.c)[2] != pb.JOINT_FIXED
+        ]
+        self.arm = [j for j in movable if j not in self.fingers]
+        self.home = self.joints()
+        for f in self.fingers:
+            pb.changeDynamics(self.robot, f, lateralFriction=1.2, physicsClientId=self.c)
+
+    def joints(self) -> np.ndarray:
+        states = pb.getJointStates(self.robot, self.arm, physicsClientId=self.c)
+        return np.array([s[0] for s in states])
+
+    def ee_pose(self) -> tuple[np.ndarray, np.ndarray]:
+        s = pb.getLinkState(
+            self.robot, self.ee, computeForwardKinematics=True, physicsClientId=self.c
+        )
+        return np.array(s[4]), np.array(pb.getMatrixFromQuaternion(s[5])).reshape(3, 3)
+
+    def _ik(self, pos: np.ndarray, rot: np.ndarray) -> np.ndarray:
+        from neoedit.sim.world import _matrix_to_quaternion
+
+        q = pb.calculateInverseKinematics(
+            self.robot, self.ee, pos.tolist(), _matrix_to_quaternion(rot),
+            maxNumIterations=300, residualThreshold=1e-5, physicsClientId=self.c,
+        )  # fmt: skip
+        return np.asarray(q[: len(self.arm)])
+
+    def fingers_to(self, opening_m: float, force: float = 40.0) -> None:
+        for f in self.fingers:
+            pb.setJointMotorControl2(
+                self.robot, f, pb.POSITION_CONTROL, targetPosition=opening_m / 2,
+                force=force, physicsClientId=self.c,
+            )  # fmt: skip
+
+    def move_to(self, pos: np.ndarray, rot: np.ndarray, seconds: float) -> tuple[float, list[int]]:
+        """Drive the hand to a pose (joint-space interpolation); (final position error,
+        bodies other than the robot touched on the way)."""
+        start, goal = self.joints(), self._ik(pos, rot)
+        steps = max(1, int(seconds * PHYSICS_HZ))
+        touched: set[int] = set()
+        for k in range(1, steps + 1):
+            q = start + (goal - start) * min(1.0, k / (0.8 * steps))
+            pb.setJointMotorControlArray(
+                self.robot, self.arm, pb.POSITION_CONTROL, targetPositions=q.tolist(),
+                forces=[200.0] * len(self.arm), physicsClientId=self.c,
+            )  # fmt: skip
+            pb.stepSimulation(physicsClientId=self.c)
+            for cp in pb.getContactPoints(bodyA=self.robot, physicsClientId=self.c):
+                touched.add(cp[2])
+        return float(np.linalg.norm(self.ee_pose()[0] - pos)), sorted(touched)
+
+    def holds(self, body: int) -> bool:
+        """Both fingers touch ``body``."""
+        return all(
+            pb.getContactPoints(self.robot, body, linkIndexA=f, physicsClientId=self.c)
+            for f in self.fingers
+        )
+
+    def reset_home(self) -> None:
+        for j, q in zip(self.arm, self.home, strict=True):
+            pb.resetJointState(self.robot, j, q, physicsClientId=self.c)
+        pb.setJointMotorControlArray(
+            self.robot, self.arm, pb.POSITION_CONTROL, targetPositions=self.home.tolist(),
+            physicsClientId=self.c,
+        )  # fmt: skip
+        self.fingers_to(0.04)
+
+
+def hand_pose(grasp: dict[str, Any], cfg: ExecuteConfig) -> tuple[np.ndarray, np.ndarray]:
+    """(position, rotation) of the Panda grasp target for a planned grasp (columns of the
+    grasp rotation: closing, finger, approach axes; the hand's y is its closing axis)."""
+    rot = np.asarray(grasp["rotation"], dtype=np.float64)
+    closing, approach = rot[:, 0], rot[:, 2]
+    hand = np.stack([np.cross(closing, approach), closing, approach], -1)
+    return np.asarray(grasp["position_m"], dtype=np.float64) + cfg.ee_offset_m * approach, hand
+
+
+def execute_move(
+    world: SimWorld, name: str, grasp: dict[str, Any], transform: np.ndarray, cfg: ExecuteConfig
+) -> Execution:
+    """Pick ``name`` with ``grasp``, carry it by the world ``transform`` and place it."""
+    arm = PandaArm(world, cfg)
+    body = world.bodies[name]
+    others = {world.table} | {b for n, b in world.bodies.items() if n != name}
+    before = world.object_pose(name)
+    pos, rot = hand_pose(grasp, cfg)
+    approach = rot[:, 2]
+    ex = Execution(False, "reach")
+
+    def step(stage: str, target: np.ndarray, hand: np.ndarray, avoid: set[int]) -> bool:
+        ex.stage = stage
+        err, touched = arm.move_to(target, hand, cfg.segment_s)
+        if err > cfg.reach_tolerance_m:
+            ex.cause = f"{stage}: the arm cannot reach the pose ({err * 100:.1f} cm off)"
+            return False
+        hit = avoid.intersection(touched)
+        if hit:
+            ex.cause = f"{stage}: collision with {_names(world, hit)}"
+            return False
+        return True
+
+    arm.fingers_to(0.08)
+    pre = pos - cfg.pregrasp_m * approach
+    if not step("reach", pre, rot, others | {body}) or not step("approach", pos, rot, others):
+        return ex
+    ex.stage = "close"
+    arm.fingers_to(0.0, cfg.grip_force_n)
+    _wait(world, 0.5)
+    if not arm.holds(body):
+        ex.cause = "close: the fingers do not both touch the object"
+        return ex
+    up = np.array([0.0, 0.0, cfg.lift_m])
+    if not step("lift", pos + up, rot, set()):
+        return ex
+    _wait(world, cfg.hold_s)
+    lifted = world.object_pose(name)[2, 3] - before[2, 3]
+    if not arm.holds(body) or lifted < 0.5 * cfg.lift_m:
+        ex.cause = f"lift: the object slipped (raised {lifted * 100:.1f} cm)"
+        return ex
+    # carry: the hand moves rigidly with the object, by the same world transform
+    goal_pos = transform[:3, :3] @ pos + transform[:3, 3]
+    goal_rot = transform[:3, :3] @ rot
+    if not step("carry", goal_pos + up, goal_rot, set()):
+        return ex
+    if not step("place", goal_pos + np.array([0.0, 0.0, 0.004]), goal_rot, set()):
+        return ex
+    ex.stage = "release"
+    arm.fingers_to(0.08)
+    _wait(world, 0.4)
+    if not step("retreat", goal_pos - cfg.pregrasp_m * (goal_rot[:, 2]), goal_rot, {body}):
+        return ex
+    arm.reset_home()
+    world.settle()
+    ex.success, ex.stage = True, "done"
+    ex.transform = world.object_pose(name) @ np.linalg.inv(before)
+    return ex
+
+
+def _wait(world: SimWorld, seconds: float) -> None:
+    for _ in range(int(seconds * PHYSICS_HZ)):
+        pb.stepSimulation(physicsClientId=world.client)
+
+
+def _names(world: SimWorld, bodies: set[int]) -> str:
+    names = {b: n for n, b in world.bodies.items()} | {world.table: "the table"}
+    return ", ".join(names.get(b, f"body {b}") for b in sorted(bodies))
+
+
+def execute_action(
+    scene_dir: Path, action: int, grasp: dict[str, Any], out: Path, cfg: ExecuteConfig
+) -> Execution:
+    """Rebuild the NEO-Sim scene at ``scene_dir``, replay its actions before ``action``
+    (1-based), execute that move with ``grasp``, and scan the outcome into ``out`` with the
+    cameras of the scene's scans (``out/scan``, ``out/execution.json``)."""
+    from neoedit.sim.capture import capture_scan
+    from neoedit.sim.spec import scene_spec_from_dict
+    from neoedit.utils.io import atomic_directory, atomic_write_json
+
+    try:
+        meta = json.loads((Path(scene_dir) / "scene.json").read_text())
+        spec = scene_spec_from_dict(meta["spec"], source=str(scene_dir))
+    except (OSError, ValueError, KeyError) as e:
+        raise NeoError(f"{scene_dir} is not a NEO-Sim scene folder: {e}") from None
+    if not 1 <= action <= len(spec.actions):
+        raise NeoError(f"--action must be in 1..{len(spec.actions)} for {scene_dir}")
+    todo = spec.actions[action - 1]
+    if todo.type != "move":
+        raise NeoError(f"action {action} is a {todo.type}, not a move")
+    transform = np.asarray(meta["actions"][action - 1]["transform_world"], dtype=np.float64)
+    with atomic_directory(Path(out), kind="execution") as tmp, SimWorld(spec) as world:
+        for a in spec.actions[: action - 1]:  # the state before the action, as simulated
+            if a.type == "remove":
+                world.remove(a.object)
+            else:
+                world.move(a.object, a.translate_m, a.yaw_deg)
+        ex = execute_move(world, todo.object, grasp, transform, cfg)
+        if ex.success:
+            capture_scan(world, spec.scan, tmp / "scan", label="executed")
+        record = {**ex.to_dict(), "object": todo.object, "intended": transform.tolist()}
+        if ex.transform is not None:
+            record["placement_error"] = placement_error(ex.transform, transform, world, todo.object)
+        atomic_write_json(tmp / "execution.json", record)
+    return ex
+
+
+def placement_error(
+    realised: np.ndarray, intended: np.ndarray, world: SimWorld, name: str
+) -> dict[str, float]:
+    """Position (of the object's box centre) and yaw errors of a placement [m, degrees]."""
+    centre = np.append(world.object_box(name).center_m, 1.0)
+    before = np.linalg.inv(realised) @ centre
+    err = np.linalg.norm((intended @ before)[:3] - centre[:3])
+    delta = intended[:3, :3].T @ realised[:3, :3]
+    yaw = abs(float(np.degrees(np.arctan2(delta[1, 0], delta[0, 0]))))
+    return {"position_m": round(float(err), 5), "yaw_deg": round(yaw, 2)}

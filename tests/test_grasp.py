@@ -1,0 +1,111 @@
+"""Grasp planning on analytic density fields (a box, a cylinder, a table, a neighbour)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from neoedit.cli import main
+from neoedit.geometry import OrientedBox
+from neoedit.grasp import GraspConfig, plan_grasps
+from neoedit.grasp.antipodal import antipodal_pairs
+from neoedit.grasp.gripper import box_corners, gripper_boxes
+from neoedit.grasp.surface import object_surface
+
+SOLID = 2000.0  # density [1/m] inside the shapes
+
+
+def scene_fn(*shapes):
+    """A density function: SOLID inside any shape (a callable points -> bool mask)."""
+
+    def density(points: torch.Tensor) -> torch.Tensor:
+        inside = torch.zeros(len(points), dtype=torch.bool)
+        for s in shapes:
+            inside |= s(points)
+        return inside.float() * SOLID
+
+    return density
+
+
+def cuboid(center, size):
+    c, h = torch.tensor(center), torch.tensor(size) / 2
+    return lambda p: ((p - c).abs() <= h).all(-1)
+
+
+def cylinder(center, radius, height):
+    c = torch.tensor(center)
+    return lambda p: (
+        ((p[:, :2] - c[:2]).norm(dim=-1) <= radius) & ((p[:, 2] - c[2]).abs() <= height / 2)
+    )
+
+
+TABLE = cuboid((0.0, 0.0, -0.05), (1.0, 1.0, 0.1))  # top at z = 0
+
+
+def test_antipodal_pairs_on_a_box_have_its_width_and_opposite_normals():
+    box = OrientedBox((0.0, 0.0, 0.03), (0.04, 0.05, 0.06), 0.0)
+    density = scene_fn(TABLE, cuboid((0.0, 0.0, 0.03), (0.04, 0.05, 0.06)))
+    cfg = GraspConfig()
+    surface = object_surface(density, box, cfg.surface)
+    p1, p2, quality = antipodal_pairs(surface, cfg)
+    assert len(p1) > 20
+    axis = (p2 - p1) / np.linalg.norm(p2 - p1, axis=1, keepdims=True)
+    width = np.linalg.norm(p2 - p1, axis=1)
+    along_x = np.abs(axis[:, 0]) > 0.9
+    along_y = np.abs(axis[:, 1]) > 0.9
+    assert along_x.any() and along_y.any()
+    assert np.allclose(width[along_x], 0.04, atol=0.006)  # within 2 voxels of a step edge
+    assert np.allclose(width[along_y], 0.05, atol=0.006)
+    assert (quality >= np.cos(np.arctan(cfg.friction))).all()
+
+
+def test_a_cylinder_is_grasped_across_its_diameter_from_above():
+    box = OrientedBox((0.1, 0.0, 0.04), (0.05, 0.05, 0.08), 0.0)
+    density = scene_fn(TABLE, cylinder((0.1, 0.0, 0.04), 0.025, 0.08))
+    grasps = plan_grasps(density, box, GraspConfig(), top_k=5)
+    assert grasps and grasps[0].score >= grasps[-1].score
+    for g in grasps:
+        assert abs(g.width_m - 0.05) < 0.006
+        closing = g.rotation[:, 0]
+        assert abs(closing[2]) < 0.3  # horizontal: across the diameter
+        assert np.allclose(g.rotation.T @ g.rotation, np.eye(3), atol=1e-6)
+    assert grasps[0].approach_deg < 30  # top-down wins
+
+
+def test_grasps_through_the_table_or_a_neighbour_are_rejected():
+    box = OrientedBox((0.0, 0.0, 0.02), (0.03, 0.03, 0.04), 0.0)
+    neighbour = cuboid((0.045, 0.0, 0.05), (0.03, 0.12, 0.1))  # tall, 1.5 cm to the +x side
+    density = scene_fn(TABLE, cuboid((0.0, 0.0, 0.02), (0.03, 0.03, 0.04)), neighbour)
+    grasps = plan_grasps(density, box, GraspConfig(), top_k=10)
+    assert grasps
+    cfg = GraspConfig().gripper
+    for g in grasps:
+        # no finger or palm corner under the table top, none inside the neighbour
+        for centre, half in gripper_boxes(cfg, g.width_m):
+            corners = box_corners(centre, half) @ g.rotation.T + g.position_m
+            assert corners[:, 2].min() > -0.002
+        assert abs(g.rotation[0, 0]) < 0.5  # no closing along x: a finger would hit the neighbour
+
+
+def test_an_object_wider_than_the_gripper_has_no_grasp(tmp_path: Path, capsys):
+    box = OrientedBox((0.0, 0.0, 0.03), (0.12, 0.12, 0.06), 0.0)
+    density = scene_fn(TABLE, cuboid((0.0, 0.0, 0.03), (0.12, 0.12, 0.06)))
+    assert plan_grasps(density, box, GraspConfig()) == []
+
+
+def test_neo_grasp_on_a_trained_scene(move_scene: Path, sim_root: Path, tmp_path: Path):
+    box = json.loads((sim_root / "pick_place_1" / "scene.json").read_text())["actions"][0]
+    (tmp_path / "box.json").write_text(json.dumps(box["source_box"]))
+    out, js = tmp_path / "g", tmp_path / "g.json"
+    args = ["grasp", str(move_scene), "--box", str(tmp_path / "box.json"), "--out", str(out)]
+    # the tiny 64x48 scan's field is noisy: more first contacts, a looser friction cone
+    loose = ["--grasp.contacts", "1000", "--grasp.friction", "0.8"]
+    assert main([*args, "--json", str(js), *loose]) == 0
+    assert (out / "grasps.png").is_file()
+    grasps = json.loads(js.read_text())
+    assert grasps and {"position_m", "rotation", "width_m", "score"} <= grasps[0].keys()
+    assert 0.005 < grasps[0]["width_m"] <= 0.08
+    assert main(["grasp", str(move_scene), "--box", str(tmp_path / "box.json"), "--top", "0"]) == 2
