@@ -29,6 +29,7 @@ import torch
 from scipy.spatial import Delaunay
 
 from neoedit.data import load_scene_data
+from neoedit.errors import NeoError
 from neoedit.eval.evaluate import evaluate
 from neoedit.geometry import OrientedBox
 from neoedit.grasp import GraspConfig, plan_grasps
@@ -69,7 +70,10 @@ def attempt(scene_dir: Path, step: int, grasps: list, out: Path) -> dict:
     tries = []
     for rank, g in enumerate(grasps[:5]):
         folder = out / f"attempt_{rank}"
-        ex = execute_action(scene_dir, step, g.to_dict(), folder, ExecuteConfig())
+        try:
+            ex = execute_action(scene_dir, step, g.to_dict(), folder, ExecuteConfig())
+        except NeoError as e:  # e.g. the KUKA setup: no gripper to execute with
+            return {"top1": False, "top5": False, "tries": [], "scan": None, "error": str(e)}
         record = json.loads((folder / "execution.json").read_text())
         tries.append({"rank": rank, "stage": ex.stage, "cause": ex.cause, **record})
         if ex.success:
@@ -140,7 +144,7 @@ def main() -> None:
         )
     (args.out / "results.json").write_text(json.dumps(results, indent=1, default=str))
     for label in ("neo", "truth geometry"):
-        rows = [r[label] for r in results.values()]
+        rows = [r[label] for r in results.values() if "error" not in r[label]]
         print(
             f"{label}: top-1 {sum(r['top1'] for r in rows)}/{len(rows)}, "
             f"top-5 {sum(r['top5'] for r in rows)}/{len(rows)}, "
