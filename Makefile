@@ -20,10 +20,10 @@ $(STAMP): pyproject.toml
 # The end-to-end demo on embedded defaults: simulate, train (field + language), render,
 # evaluate, find the mug by name, remove it (a new version) and score that against the
 # post-removal scan, move it (preview and full), then run a 3-step plan into a scene store
-# (log, diff, undo).
+# (log, diff, undo) and plan grasps of the mug on the store's current version.
 demo: $(STAMP)
 	$(VENV)/bin/neo sim scene examples/demo_scene.yaml --out $(DEMO_OUT)/sim --overwrite
-	rm -rf $(DEMO_OUT)/scene $(DEMO_OUT)/render $(DEMO_OUT)/eval_images $(DEMO_OUT)/query $(DEMO_OUT)/no_mug $(DEMO_OUT)/mug_preview $(DEMO_OUT)/mug_moved $(DEMO_OUT)/moved_render $(DEMO_OUT)/plan $(DEMO_OUT)/plan_diff
+	rm -rf $(DEMO_OUT)/scene $(DEMO_OUT)/render $(DEMO_OUT)/eval_images $(DEMO_OUT)/query $(DEMO_OUT)/no_mug $(DEMO_OUT)/mug_preview $(DEMO_OUT)/mug_moved $(DEMO_OUT)/moved_render $(DEMO_OUT)/plan $(DEMO_OUT)/plan_diff $(DEMO_OUT)/grasp
 	$(VENV)/bin/neo train $(DEMO_OUT)/sim/pre --out $(DEMO_OUT)/scene --max-steps 600 --eval-every 200
 	$(VENV)/bin/neo render $(DEMO_OUT)/scene --views spiral --n-frames 36 --video --out $(DEMO_OUT)/render
 	$(VENV)/bin/neo eval $(DEMO_OUT)/scene --data $(DEMO_OUT)/sim/pre --json $(DEMO_OUT)/eval.json --images $(DEMO_OUT)/eval_images
@@ -38,6 +38,7 @@ demo: $(STAMP)
 	$(VENV)/bin/neo log $(DEMO_OUT)/plan
 	$(VENV)/bin/neo diff $(DEMO_OUT)/plan step_0 step_3 --out $(DEMO_OUT)/plan_diff
 	$(VENV)/bin/neo restore $(DEMO_OUT)/plan step_2
+	$(VENV)/bin/neo grasp $(DEMO_OUT)/plan "mug" --json $(DEMO_OUT)/grasps.json --out $(DEMO_OUT)/grasp --overwrite
 	@echo "contact sheets:  $(DEMO_OUT)/sim/*/contact_sheet.png"
 	@echo "spiral video:    $(DEMO_OUT)/render/video.gif"
 	@echo "held-out views (render | ground truth): $(DEMO_OUT)/eval_images/"
@@ -46,6 +47,7 @@ demo: $(STAMP)
 	@echo "mug moved (preview / full):    $(DEMO_OUT)/mug_preview/report/before_after.png, $(DEMO_OUT)/mug_moved/report/before_after.png"
 	@echo "moved mug found by name:       $(DEMO_OUT)/mug_moved_query.json; spiral video: $(DEMO_OUT)/moved_render/video.gif"
 	@echo "a 3-step plan (scene store):   $(DEMO_OUT)/plan/plan.png, diff step_0 vs step_3: $(DEMO_OUT)/plan_diff/diff.png (current: step_2)"
+	@echo "grasps of the nudged mug:      $(DEMO_OUT)/grasp/grasps.png, $(DEMO_OUT)/grasps.json"
 
 test: $(STAMP)
 	$(PY) -m pytest tests

@@ -9,6 +9,10 @@ Layout of a scene directory::
                           (only once a language field is trained)
     optimizer.safetensors Adam state (only while training may resume)
 
+A version inside a scene store (:mod:`neoedit.storage`) holds ``scene.json`` and
+``tensors.json`` instead of the ``.safetensors`` files: its tensors are blobs of the store,
+most as deltas against its parent version.
+
 Written atomically; configs are JSON, tensors safetensors (nothing is pickled).
 """
 
@@ -42,6 +46,7 @@ from neoedit.rendering.renderer import RenderConfig, render_image
 from neoedit.storage import find_store, resolve_scene_dir
 from neoedit.storage.store import MANIFEST
 from neoedit.utils.io import atomic_directory, atomic_write_json
+from neoedit.utils.optim import optimizer_tensors
 from neoedit.utils.validate import check_finite, check_language, check_scene_meta, check_weights
 
 FORMAT = "neoedit.scene/1"
@@ -208,9 +213,7 @@ def save_scene(
     with atomic_directory(path, overwrite=True, kind="scene") as tmp:
         save_file(groups["field"], str(tmp / "field.safetensors"))
         if optimizer is not None:
-            save_file(
-                _optimizer_tensors(scene.field, optimizer), str(tmp / "optimizer.safetensors")
-            )
+            save_file(optimizer_tensors(scene.field, optimizer), str(tmp / "optimizer.safetensors"))
         if "language" in groups:
             save_file(groups["language"], str(tmp / "language.safetensors"))
         atomic_write_json(tmp / "scene.json", dataclasses.asdict(scene.meta))
@@ -324,7 +327,7 @@ def _apply_groups(scene: Scene, groups: dict[str, dict[str, torch.Tensor]], path
     device = scene.field.aabb.device
     try:
         base = scene.field.base if isinstance(scene.field, PatchedField) else scene.field
-        base.load_state_dict(_state(tensors, "field."))
+        base.load_state_dict(_state(tensors, "field."))  # type: ignore[union-attr]
         if meta.patches:
             patched = scene.patched()
             for i, p in enumerate(meta.patches):
@@ -381,37 +384,3 @@ def _load_language(
     except Exception as e:  # corrupt file, missing keys, shape mismatch
         raise NeoError(f"{file}: cannot load the language field: {e}") from None
     scene.language, scene.surface_points_m = field_, points
-
-
-def _optimizer_tensors(
-    model: torch.nn.Module, optimizer: torch.optim.Optimizer
-) -> dict[str, torch.Tensor]:
-    names = {id(p): n for n, p in model.named_parameters()}
-    out = {}
-    for p, state in optimizer.state.items():
-        for key, value in state.items():
-            if torch.is_tensor(value):
-                out[f"{names[id(p)]}.{key}"] = (
-                    value.detach().cpu().contiguous().reshape(value.shape)
-                )
-    return out
-
-
-def load_optimizer_state(
-    path: Path, model: torch.nn.Module, optimizer: torch.optim.Optimizer
-) -> bool:
-    """Restore Adam state saved by :func:`save_scene`; False if the scene has none."""
-    file = Path(path) / "optimizer.safetensors"
-    if not file.is_file():
-        return False
-    tensors = load_file(str(file))
-    device = next(model.parameters()).device
-    for name, p in model.named_parameters():
-        state = {
-            k.removeprefix(f"{name}."): v.to(device)
-            for k, v in tensors.items()
-            if k.rsplit(".", 1)[0] == name
-        }
-        if state:
-            optimizer.state[p] = state
-    return True

@@ -80,7 +80,7 @@ class GraspCommand:
         if self.json is not None:
             atomic_write_json(self.json, records)
 
-    def _picture(self, scene, box, grasps, out: Path) -> None:  # type: ignore[no-untyped-def]
+    def _picture(self, scene, box, grasps, out: Path) -> None:
         from neoedit.cameras.rays import CameraTensors
         from neoedit.utils.io import atomic_directory, write_png
         from neoedit.viz.boxes import draw_box

@@ -113,5 +113,5 @@ class PlanCommand:
         write_png(self.out / "plan.png", tile_images(tiles, cols=len(names), labels=labels))
 
 
-def _report(write_report, parent, child, folder: Path) -> None:  # type: ignore[no-untyped-def]
+def _report(write_report, parent, child, folder: Path) -> None:
     write_report(folder / "report", parent, child, [])

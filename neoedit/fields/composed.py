@@ -133,7 +133,7 @@ class ComposedField(nn.Module):
         if not len(idx):
             return
         for k in torch.unique(who[idx]).tolist():
-            yield self.parts[k], idx[who[idx] == k]  # type: ignore[misc]
+            yield self.parts[k], idx[who[idx] == k]
 
     def density(self, points: torch.Tensor) -> torch.Tensor:
         """sigma (N,) [1/m] at world points (N,3)."""

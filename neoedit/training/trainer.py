@@ -24,10 +24,10 @@ from neoedit.language.training import LanguageTrainConfig, resolve_teacher, trai
 from neoedit.rendering.occupancy import OccupancyGridConfig
 from neoedit.rendering.renderer import RenderConfig, render_image, render_rays
 from neoedit.rendering.volume import distortion_loss, opacity_penalty
-from neoedit.scene import Scene, SceneMeta, load_optimizer_state, load_scene, save_scene
+from neoedit.scene import Scene, SceneMeta, load_scene, save_scene
 from neoedit.storage import find_store, is_store
 from neoedit.utils.device import resolve_device
-from neoedit.utils.optim import field_param_groups, make_adam
+from neoedit.utils.optim import field_param_groups, load_optimizer_state, make_adam
 from neoedit.utils.progress import make_progress
 
 

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import torch
+from safetensors.torch import load_file
 
 
 def fused_adam_kwargs(device: torch.device | str) -> dict[str, bool]:
@@ -45,3 +47,38 @@ def field_param_groups(
         {"params": mlp, "lr": lr * mlp_lr_factor, "weight_decay": mlp_weight_decay, "name": "mlp"},
     ]
     return [g for g in groups if g["params"]]
+
+
+def optimizer_tensors(
+    model: torch.nn.Module, optimizer: torch.optim.Optimizer
+) -> dict[str, torch.Tensor]:
+    names = {id(p): n for n, p in model.named_parameters()}
+    out = {}
+    for p, state in optimizer.state.items():
+        for key, value in state.items():
+            if torch.is_tensor(value):
+                out[f"{names[id(p)]}.{key}"] = (
+                    value.detach().cpu().contiguous().reshape(value.shape)
+                )
+    return out
+
+
+def load_optimizer_state(
+    path: Path, model: torch.nn.Module, optimizer: torch.optim.Optimizer
+) -> bool:
+    """Restore Adam state saved with a scene (``optimizer.safetensors``); False if the scene
+    has none."""
+    file = Path(path) / "optimizer.safetensors"
+    if not file.is_file():
+        return False
+    tensors = load_file(str(file))
+    device = next(model.parameters()).device
+    for name, p in model.named_parameters():
+        state = {
+            k.removeprefix(f"{name}."): v.to(device)
+            for k, v in tensors.items()
+            if k.rsplit(".", 1)[0] == name
+        }
+        if state:
+            optimizer.state[p] = state
+    return True
