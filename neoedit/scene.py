@@ -202,7 +202,8 @@ def save_scene(
     path = Path(path)
     _sync_patches(scene)
     groups = _scene_groups(scene)
-    check_finite(groups["field"], path)  # a diverged field never replaces a good version
+    for tensors in groups.values():  # a diverged edit never replaces a good version
+        check_finite(tensors, path)
     store = find_store(path)
     if store is not None:
         if optimizer is not None:
@@ -347,6 +348,8 @@ def _apply_groups(scene: Scene, groups: dict[str, dict[str, torch.Tensor]], path
             raise NeoError(f"{path}: scene.json names a language field but it is not stored")
         _load_language(path, scene, meta.language, groups["language"])
         check_language(meta, path, scene)
+        scene.language.to(device)  # type: ignore[union-attr]
+        scene.surface_points_m = scene.surface_points_m.to(device)  # type: ignore[union-attr]
     scene.field.to(device)
 
 
@@ -380,7 +383,7 @@ def _load_language(
                 if k.startswith("language.")
             }
         )
-        points = tensors["surface_points_m"]
+        points = tensors["surface_points_m"].clone()  # never the store's cached tensor
     except Exception as e:  # corrupt file, missing keys, shape mismatch
         raise NeoError(f"{file}: cannot load the language field: {e}") from None
     scene.language, scene.surface_points_m = field_, points

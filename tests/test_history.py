@@ -215,6 +215,12 @@ def test_a_killed_write_leaves_the_store_valid(chain: Path, tmp_path: Path):
     assert not (copy / "step_9").exists()
     for n in names:  # every earlier version still loads
         load_scene(copy / n)
+    # what a writer killed by the OS leaves (its temporary folder) is no version
+    partial = copy / ".step_9.neoedit-999999-0badc0de.partial"
+    shutil.copytree(copy / "step_1", partial)
+    assert store.names() == names
+    with pytest.raises(NeoError):
+        store.set_current(partial.name)
 
 
 def test_a_second_writer_gets_a_clear_lock_error(chain: Path, capsys):

@@ -57,10 +57,14 @@ class GraspCommand:
             raise NeoError("--top must be >= 1")
         if not (0 < self.grasp.friction < 10):
             raise NeoError("--grasp.friction must be in (0, 10)")
+        if self.grasp.approaches < 1 or self.grasp.contacts < 1:
+            raise NeoError("--grasp.approaches and --grasp.contacts must be >= 1")
+        if not (0.0005 <= self.grasp.surface.voxel_m <= 0.02):
+            raise NeoError("--grasp.surface.voxel-m must be in [0.0005, 0.02] m")
         out = self.out or Path("outputs/grasp") / Path(self.scene).name
         check_writable_output(out, [self.scene], "grasp", self.overwrite)
         if self.json is not None:
-            check_writable_output(self.json, [self.scene], "json", overwrite=True)
+            check_writable_output(self.json, [self.scene, self.box], "json", overwrite=True)
         scene = load_scene(self.scene, resolve_device(self.device))
         box = find_boxes(scene, self.prompt, self.box, self.query, "grasp")[0]
         t0 = time.perf_counter()

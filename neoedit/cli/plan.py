@@ -55,6 +55,8 @@ class PlanCommand:
         from neoedit.utils.io import check_writable_output
         from neoedit.viz.versions import pick_views, render_versions
 
+        if self.views < 1:
+            raise NeoError("--views must be >= 1")
         actions = load_plan(self.plan)  # every step checked before any work
         for a in actions:
             plan_boxes(a)

@@ -159,7 +159,9 @@ class SimExecuteCommand:
         if not isinstance(grasp, dict) or not {"position_m", "rotation"} <= grasp.keys():
             raise NeoError(f"{self.grasp}: expected a grasp with position_m and rotation")
         check_writable_output(self.out, [self.scene, self.grasp], "execution", self.overwrite)
-        ex = execute_action(self.scene, self.action, grasp, self.out, ExecuteConfig())
+        ex = execute_action(
+            self.scene, self.action, grasp, self.out, ExecuteConfig(), self.overwrite
+        )
         if not ex.success:
             console.print(f"[bold red]execution failed at {ex.stage}: {ex.cause}[/]")
             raise SystemExit(1)

@@ -55,6 +55,8 @@ class MotionSpec(BaseModel):
                 )
         elif self.translate_m is None and self.yaw_deg == 0.0:
             raise ValueError("a move needs a motion: translate_m [x, y, z], yaw_deg or transform")
+        elif self.yaw_deg == 0.0 and not any(self.translate_m or ()):
+            raise ValueError("the motion is zero: nothing would move")
         if self.translate_m is not None and not np.isfinite(self.translate_m).all():
             raise ValueError("translate_m must be finite")
         if not np.isfinite(self.yaw_deg):
@@ -89,6 +91,10 @@ class Action(BaseModel):
             return self
         if self.motions is not None and inline:
             raise ValueError("give either motions or one motion, not both")
+        if self.motions is not None and not self.motions:
+            raise ValueError("motions is empty: give one motion per object")
+        if self.prompt is not None and not self.prompt.strip():
+            raise ValueError("the prompt is empty")
         if self.motions is None:
             self.motions = [
                 MotionSpec(

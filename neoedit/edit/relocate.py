@@ -42,6 +42,7 @@ from neoedit.fields.composed import ComposedField, EmptyField, MaskedField, Tran
 from neoedit.fields.patched import PatchedField, edit_region
 from neoedit.fields.radiance import Field, RadianceField
 from neoedit.geometry import OrientedBox, is_rigid
+from neoedit.geometry.box import box_iou_3d
 from neoedit.rendering.occupancy import cells_in_boxes, refresh_grid
 from neoedit.scene import Scene
 from neoedit.utils.validate import check_edit_boxes
@@ -171,6 +172,8 @@ def move(
         "transforms": [t.round(9).tolist() for t in transforms],
         "config": dataclasses.asdict(cfg),
     }
+    if cfg.preview:
+        _check_not_into_cuts(parent, targets)
     child = new_version(parent, record)
     if cfg.preview:
         timings = _preview(child, sources, targets, transforms)
@@ -188,6 +191,21 @@ def move(
     child.meta.edits[-1]["timings"] = timings
     child.meta.edits[-1]["seconds"] = round(time.perf_counter() - t0, 2)
     return child
+
+
+def _check_not_into_cuts(parent: Scene, targets: list[OrientedBox]) -> None:
+    """Render-time removals apply after render-time moves: a preview move into a box that
+    this version cuts or suppresses would be cut too."""
+    pending = [
+        OrientedBox.from_dict(b) for b in [*parent.meta.cut_boxes, *parent.meta.suppress_boxes]
+    ]
+    for t in targets:
+        if any(box_iou_3d(t, c) > 0 for c in pending):
+            raise NeoError(
+                "the target box meets a box this version removes at render time (a removal "
+                "without inpainting): a preview move there would be cut away too; move "
+                "without --preview, or remove with inpainting first"
+            )
 
 
 def _preview(

@@ -145,20 +145,32 @@ def _occupied_share(
     local_points: np.ndarray,
     level: float,
 ) -> np.ndarray:
-    """(C,) share of ``local_points`` (gripper frame) holding density above ``level`` for
-    each pose (centre (C,3), rotation (C,3,3))."""
-    world = np.einsum("cij,kj->cki", rotations, local_points) + centres[:, None, :]
+    """(C,) share of ``local_points`` (gripper frame: (K,3), or (C,K,3) per pose) holding
+    density above ``level`` for each pose (centre (C,3), rotation (C,3,3))."""
+    if local_points.ndim == 2:
+        local_points = np.broadcast_to(local_points, (len(centres), *local_points.shape))
+    world = np.einsum("cij,ckj->cki", rotations, local_points) + centres[:, None, :]
     pts = torch.as_tensor(world.reshape(-1, 3), dtype=torch.float32)
     sigma = torch.cat([density(chunk) for chunk in pts.split(262144)]).cpu().numpy()
     return (sigma.reshape(len(centres), -1) > level).mean(1)
 
 
-def _gripper_points(cfg: GraspConfig, width: float, grow: float = 0.0) -> np.ndarray:
-    pts = []
-    for k, (c, h) in enumerate(gripper_boxes(cfg.gripper, width)):
+def _gripper_points(cfg: GraspConfig, widths: np.ndarray, grow: float = 0.0) -> np.ndarray:
+    """(C,K,3) points filling the fingers (each pose opened to its own width) and the palm,
+    gripper frame."""
+    ref = gripper_boxes(cfg.gripper, 0.0)
+    parts, finger = [], []
+    for k, (c, h) in enumerate(ref):
         step = cfg.collision_step_m * (2.5 if k == 2 else 1.0)
-        pts.append(box_lattice(c, h + grow, step))
-    return np.concatenate(pts)
+        lattice = box_lattice(c, h + grow, step)
+        parts.append(lattice)
+        finger.append(np.full(len(lattice), (-1.0, 1.0, 0.0)[k]))
+    pts, side = np.concatenate(parts), np.concatenate(finger)
+    # each finger moves out by half the pose's opening beyond the reference's
+    shift = np.array([gripper_boxes(cfg.gripper, float(w))[1][0][0] - ref[1][0][0] for w in widths])
+    out = np.repeat(pts[None], len(widths), axis=0)
+    out[:, :, 0] += shift[:, None] * side[None, :]
+    return out
 
 
 def plan_grasps(
@@ -181,16 +193,15 @@ def plan_grasps(
     level = cfg.surface.level
     found: list[Grasp] = []
     for chunk in np.array_split(order, max(1, math.ceil(len(order) / 256))):
-        w = float(np.max(width[chunk]))  # one opening per chunk: the widest (conservative)
-        hand = _gripper_points(cfg, w)
+        hand = _gripper_points(cfg, width[chunk])  # each pose at its own opening
         free = _occupied_share(density, centre[chunk], rot[chunk], hand, level) == 0
         for back in cfg.approach_path_m:
-            shifted = hand - np.array([0.0, 0.0, back])
+            shifted = hand - np.array([0.0, 0.0, back])  # further back along the approach
             free &= _occupied_share(density, centre[chunk], rot[chunk], shifted, level) == 0
         keep = chunk[free]
         if len(keep) == 0:
             continue
-        grown = _gripper_points(cfg, w, grow=0.01)
+        grown = _gripper_points(cfg, width[keep], grow=0.01)
         clearance = 1.0 - _occupied_share(density, centre[keep], rot[keep], grown, level)
         for i, c in zip(keep, clearance, strict=True):
             score = 0.5 * qual[i] + 0.3 * vertical[i] + 0.2 * c

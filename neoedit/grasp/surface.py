@@ -15,6 +15,8 @@ from skimage.measure import marching_cubes
 from neoedit.errors import NeoError
 from neoedit.geometry import OrientedBox
 
+MAX_SAMPLES = 8_000_000
+"""Largest density grid sampled for one object."""
 DensityFn = Callable[[torch.Tensor], torch.Tensor]
 """World points (N,3) -> density (N,) as the scene renders (occupancy applied)."""
 
@@ -72,6 +74,11 @@ def sample_volume(density: DensityFn, box: OrientedBox, cfg: SurfaceConfig) -> V
     lo = np.array([-half[0], -half[1], -box.half_extents[2] + cfg.above_support_m])
     hi = half
     n = np.maximum(2, np.ceil((hi - lo) / cfg.voxel_m).astype(int) + 1)
+    if int(np.prod(n)) > MAX_SAMPLES:
+        raise NeoError(
+            f"the object's box ({np.round(box.size_m, 3).tolist()} m) is too large to grasp at "
+            f"{cfg.voxel_m * 1000:.1f} mm ({int(np.prod(n)):,} samples > {MAX_SAMPLES:,})"
+        )
     axes = [lo[k] + cfg.voxel_m * np.arange(n[k]) for k in range(3)]
     local = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
     volume = Volume(box, lo, cfg.voxel_m, np.zeros(tuple(n)))

@@ -200,11 +200,15 @@ def best_cluster(labels: np.ndarray, core: np.ndarray, rel: np.ndarray, min_poin
     sizes = np.array([int(((labels == k) & core).sum()) for k in ids])
     if not (sizes >= min_points).any():
         return int(ids[np.argmax(sizes)])
-    medians = [
-        float(np.median(rel[(labels == k) & core])) if n >= min_points else -np.inf
-        for k, n in zip(ids, sizes, strict=True)
-    ]
-    return int(ids[int(np.argmax(medians))])
+    medians = np.array(
+        [
+            float(np.median(rel[(labels == k) & core])) if n >= min_points else -np.inf
+            for k, n in zip(ids, sizes, strict=True)
+        ]
+    )
+    # near-ties (one object split in two, e.g. a mug's body and handle): the larger part
+    close = medians >= medians.max() - 0.01
+    return int(ids[close][int(np.argmax(sizes[close]))])
 
 
 def query_scene(

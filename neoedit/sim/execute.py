@@ -197,7 +197,8 @@ def execute_move(
             return False
         return True
 
-    arm.fingers_to(0.08)
+    opening = min(float(grasp.get("width_m", 0.06)) + 0.02, 0.08)  # as the planner checked
+    arm.fingers_to(opening)
     pre = pos - cfg.pregrasp_m * approach
     if not step("reach", pre, rot, others | {body}) or not step("approach", pos, rot, others):
         return ex
@@ -250,7 +251,12 @@ def _names(world: SimWorld, bodies: set[int]) -> str:
 
 
 def execute_action(
-    scene_dir: Path, action: int, grasp: dict[str, Any], out: Path, cfg: ExecuteConfig
+    scene_dir: Path,
+    action: int,
+    grasp: dict[str, Any],
+    out: Path,
+    cfg: ExecuteConfig,
+    overwrite: bool = False,
 ) -> Execution:
     """Rebuild the NEO-Sim scene at ``scene_dir``, replay its actions before ``action``
     (1-based), execute that move with ``grasp``, and scan the outcome into ``out`` with the
@@ -269,8 +275,19 @@ def execute_action(
     todo = spec.actions[action - 1]
     if todo.type != "move":
         raise NeoError(f"action {action} is a {todo.type}, not a move")
-    transform = np.asarray(meta["actions"][action - 1]["transform_world"], dtype=np.float64)
-    with atomic_directory(Path(out), kind="execution") as tmp, SimWorld(spec) as world:
+    rot = np.asarray(grasp.get("rotation"), dtype=np.float64)
+    if rot.shape != (3, 3) or not np.allclose(rot.T @ rot, np.eye(3), atol=1e-3):
+        raise NeoError("the grasp's rotation must be a 3x3 orthonormal matrix")
+    try:
+        transform = np.asarray(meta["actions"][action - 1]["transform_world"], dtype=np.float64)
+    except (KeyError, IndexError, TypeError, ValueError):
+        raise NeoError(
+            f"{scene_dir}/scene.json has no transform_world for action {action}"
+        ) from None
+    with (
+        atomic_directory(Path(out), overwrite=overwrite, kind="execution") as tmp,
+        SimWorld(spec) as world,
+    ):
         for a in spec.actions[: action - 1]:  # the state before the action, as simulated
             if a.type == "remove":
                 world.remove(a.object)

@@ -94,7 +94,7 @@ def encode(
     entries: dict[str, dict[str, Any]] = {}
     stored: dict[str, torch.Tensor] = {}
     for name, t in tensors.items():
-        t = t.detach().cpu().contiguous()
+        t = t.detach().cpu().contiguous().clone()  # never a live parameter's storage
         best: tuple[int, str, Any] | None = None
         floating = t.is_floating_point() and t.dtype != torch.float16
         for ref_name in _candidates(name, parent or {}) if parent is not None else []:

@@ -40,7 +40,7 @@ MANIFEST_FORMAT = "neoedit.tensors/1"
 _HELD: dict[str, int] = {}
 """Store roots whose writer lock this process holds (an flock is per open file, so a second
 open in the same process must not try again)."""
-_LAST: dict[str, tuple[str, Groups]] = {}
+_LAST: dict[str, tuple[tuple[str, str], Groups]] = {}
 """Per store root, the last version this process rebuilt or wrote (the next edit's parent)."""
 NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,99}$")
 Groups = dict[str, dict[str, torch.Tensor]]
@@ -105,17 +105,22 @@ class SceneStore:
         name = self.current
         if name is None:
             raise NeoError(f"scene store {self.root} holds no version yet")
+        self.info(name)  # a valid name of a version of this store
         return self.root / name
 
     def names(self) -> list[str]:
         """Version names, oldest first."""
         found = []
-        for d in self.root.iterdir():
+        for d in self.root.iterdir():  # a writer's temporary folder (".NAME.neoedit-...") is none
+            if not NAME_RE.match(d.name) or d.name == "blobs":
+                continue
             if d.is_dir() and (d / MANIFEST).is_file() and (d / "scene.json").is_file():
                 found.append((d.stat().st_mtime_ns, d.name))
         return [n for _, n in sorted(found)]
 
     def info(self, name: str) -> VersionInfo:
+        if not isinstance(name, str) or not NAME_RE.match(name) or name == "blobs":
+            raise NeoError(f"{self.root}: {name!r} is not a version name of this store")
         d = self.root / name
         try:
             meta = json.loads((d / "scene.json").read_text())
@@ -191,8 +196,9 @@ class SceneStore:
     # -- reading and writing versions -------------------------------------------------------
     def tensors(self, name: str) -> Groups:
         """Every tensor group of a version, rebuilt through its parents' deltas."""
+        cache_key = (name, json.dumps(self.info(name).manifest["groups"], sort_keys=True))
         last = _LAST.get(str(self.root.resolve()))
-        if last is not None and last[0] == name:
+        if last is not None and last[0] == cache_key:
             return last[1]
         chain: list[VersionInfo] = []
         seen: set[str] = set()
@@ -219,7 +225,7 @@ class SceneStore:
                 built[gname] = decode(payload, g["tensors"], parent, where)
             groups = built
         assert groups is not None  # the chain holds at least the version itself
-        _LAST[str(self.root.resolve())] = (name, groups)
+        _LAST[str(self.root.resolve())] = (cache_key, groups)
         return groups
 
     def write(
@@ -254,7 +260,8 @@ class SceneStore:
                 atomic_write_json(tmp / "scene.json", meta)
                 if extras is not None:
                     extras(tmp)
-            _LAST[str(self.root.resolve())] = (name, stored)
+            cache_key = (name, json.dumps(manifest["groups"], sort_keys=True))
+            _LAST[str(self.root.resolve())] = (cache_key, stored)
             if make_current:
                 atomic_write_json(self.root / "store.json", {**self._config(), "current": name})
         return stored
