@@ -67,8 +67,12 @@ class GraspCommand:
             check_writable_output(self.json, [self.scene, self.box], "json", overwrite=True)
         scene = load_scene(self.scene, resolve_device(self.device))
         box = find_boxes(scene, self.prompt, self.box, self.query, "grasp")[0]
+        cfg = self.grasp
+        if scene.meta.language is not None:  # the scan's up axis (z in NEO-Sim)
+            x, y, z = (float(v) for v in scene.meta.language.up)
+            cfg = dataclasses.replace(cfg, up=(x, y, z))
         t0 = time.perf_counter()
-        grasps = plan_grasps(scene_density(scene), box, self.grasp, self.top)
+        grasps = plan_grasps(scene_density(scene), box, cfg, self.top)
         seconds = time.perf_counter() - t0
         if not grasps:
             console.print(

@@ -103,6 +103,11 @@ def antipodal_pairs(surface: Surface, cfg: GraspConfig) -> tuple[np.ndarray, ...
     frac = np.clip((v_in - level) / np.maximum(v_in - v_out, 1e-9), 0.0, 1.0)
     width = ts[k - 1] + frac * step
     p2 = p1 - width[:, None] * n1
+    # an exit on the grid's faces (its floor above the support, its sides) is where the
+    # sampled density ends, not the object: no contact there
+    p2_local = vol.to_local(p2)
+    far_end = vol.origin + vol.voxel_m * (np.asarray(vol.values.shape) - 1)
+    has &= ((p2_local > vol.origin + vol.voxel_m) & (p2_local < far_end - vol.voxel_m)).all(-1)
     g = np.stack(
         [vol.sample(vol.to_local(p2), gk) for gk in np.gradient(vol.values, vol.voxel_m)], -1
     )
