@@ -49,10 +49,7 @@ def truth_density(scene_dir: Path, step: int):  # type: ignore[no-untyped-def]
     spec = scene_spec_from_dict(meta["spec"])
     with SimWorld(spec) as world:
         for a in spec.actions[: step - 1]:
-            if a.type == "remove":
-                world.remove(a.object)
-            else:
-                world.move(a.object, a.translate_m, a.yaw_deg)
+            world.apply(a)
         hulls = [Delaunay(world.object_vertices_world_for(b)) for b in world.bodies.values()]
 
     def density(points: torch.Tensor) -> torch.Tensor:

@@ -255,7 +255,8 @@ def _scene_groups(scene: Scene) -> dict[str, dict[str, torch.Tensor]]:
     return groups
 
 
-def _read_meta(path: Path) -> SceneMeta:
+def read_scene_meta(path: Path) -> SceneMeta:
+    """The validated metadata (scene.json) of a scene folder or store version."""
     meta_path = path / "scene.json"
     if not path.is_dir():
         raise NeoError(f"scene not found: {path}")
@@ -305,7 +306,7 @@ def _read_files(path: Path, meta: SceneMeta) -> dict[str, dict[str, torch.Tensor
 def load_scene(path: Path, device: torch.device | str = "cpu") -> Scene:
     """A scene folder, a version of a scene store, or a store (its current version)."""
     path = resolve_scene_dir(Path(path))
-    meta = _read_meta(path)
+    meta = read_scene_meta(path)
     store = find_store(path) if (path / MANIFEST).is_file() else None
     if (path / MANIFEST).is_file() and store is None:
         raise NeoError(f"{path} is a store version outside its store (no store.json beside it)")

@@ -68,9 +68,9 @@ class LogCommand:
             console.print(table)
             console.print(f"{len(store.names())} versions, {total / 1e6:.1f} MB in all")
             return
-        from neoedit.scene import _read_meta
+        from neoedit.scene import read_scene_meta
 
-        meta = _read_meta(Path(self.scene))
+        meta = read_scene_meta(Path(self.scene))
         for rec in meta.edits:  # the lineage that led to this folder
             fake = {"edits": [rec], "version_id": rec["version"]}
             table.add_row(*_row("", fake, rec.get("parent") or "-", None))

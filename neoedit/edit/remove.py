@@ -23,7 +23,6 @@ import numpy as np
 import torch
 
 from neoedit.cameras import Cameras
-from neoedit.cameras.rays import CameraTensors
 from neoedit.edit.history import check_output, new_version
 from neoedit.edit.inpaint import Inpainter, make_inpainter
 from neoedit.edit.language_update import LanguageEdit, update_language
@@ -39,6 +38,7 @@ from neoedit.scene import Scene, load_scene, save_scene
 from neoedit.utils.io import write_png
 from neoedit.utils.validate import check_edit_boxes
 from neoedit.viz.contact_sheet import tile_images
+from neoedit.viz.versions import pick_views, render_versions
 
 REMOVAL_MODES = ("resample", "suppress")
 
@@ -255,17 +255,9 @@ def write_report(
     for k, tiles in strips:
         n = len(tiles) // 3
         write_png(report / f"virtual_views_round_{k}.png", tile_images(tiles, cols=n))
-    cameras, _, split = parent.scan_cameras()
-    train = split.get("train", np.arange(len(cameras)))
-    pick = train[np.linspace(0, len(train) - 1, min(3, len(train))).round().astype(int)]
+    pick = pick_views(parent, 3, split="train")
     # a picture, not a measurement: at most ~160 px wide (halves a 320 px scan's cost)
-    cameras = cameras.scaled(min(1.0, 160.0 / float(np.max(cameras.width))))
-    cams = CameraTensors(cameras, parent.field.aabb.device)
-    tiles, labels = [], []
-    for i in pick:
-        h, w = int(cameras.height[i]), int(cameras.width[i])
-        for name, version in (("before", parent), ("after", child)):
-            rgb = version.render_image(cams, int(i), h, w)["rgb"]
-            tiles.append((rgb.clamp(0, 1).cpu().numpy() * 255).round().astype(np.uint8))
-            labels.append(f"{name} (view {i})")
+    rows = render_versions([parent, child], pick, max_width=160)
+    tiles = [tile for row in rows for tile in row]
+    labels = [f"{name} (view {i})" for i in pick for name in ("before", "after")]
     write_png(report / "before_after.png", tile_images(tiles, cols=2, labels=labels))

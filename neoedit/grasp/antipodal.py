@@ -108,11 +108,7 @@ def antipodal_pairs(surface: Surface, cfg: GraspConfig) -> tuple[np.ndarray, ...
     p2_local = vol.to_local(p2)
     far_end = vol.origin + vol.voxel_m * (np.asarray(vol.values.shape) - 1)
     has &= ((p2_local > vol.origin + vol.voxel_m) & (p2_local < far_end - vol.voxel_m)).all(-1)
-    g = np.stack(
-        [vol.sample(vol.to_local(p2), gk) for gk in np.gradient(vol.values, vol.voxel_m)], -1
-    )
-    n2 = -g @ vol.box.rotation.T
-    n2 /= np.maximum(np.linalg.norm(n2, axis=-1, keepdims=True), 1e-12)
+    n2 = vol.outward_normals(vol.to_local(p2)) @ vol.box.rotation.T
     axis = (p2 - p1) / np.maximum(width[:, None], 1e-12)  # = -n1
     cos1 = np.sum(-n1 * axis, -1)
     cos2 = np.sum(n2 * axis, -1)

@@ -5,7 +5,7 @@ marching cubes (scikit-image) for contact points, outward normals from the densi
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
@@ -43,12 +43,22 @@ class Volume:
     voxel_m: float
     values: np.ndarray
     """(nx, ny, nz) density."""
+    _gradients: list[np.ndarray] | None = field(default=None, repr=False)
 
     def to_world(self, local: np.ndarray) -> np.ndarray:
         return local @ self.box.rotation.T + np.asarray(self.box.center_m)
 
     def to_local(self, world: np.ndarray) -> np.ndarray:
         return self.box.world_to_local(world)
+
+    def outward_normals(self, local: np.ndarray) -> np.ndarray:
+        """Unit normals (..., 3), local frame, down the density gradient (finite differences,
+        computed once per volume); zero where the density is flat."""
+        if self._gradients is None:
+            self._gradients = np.gradient(self.values, self.voxel_m)
+        g = np.stack([self.sample(local, gk) for gk in self._gradients], -1)
+        norm = np.linalg.norm(g, axis=-1, keepdims=True)
+        return np.where(norm > 1e-9, -g / np.maximum(norm, 1e-12), 0.0)
 
     def sample(self, local: np.ndarray, values: np.ndarray | None = None) -> np.ndarray:
         """Trilinear density (or ``values``) at local points (..., 3); 0 outside the grid."""
@@ -100,9 +110,6 @@ def object_surface(density: DensityFn, box: OrientedBox, cfg: SurfaceConfig) -> 
     padded = np.pad(volume.values, 1, constant_values=0.0)
     verts, _, _, _ = marching_cubes(padded, level=cfg.level, spacing=(cfg.voxel_m,) * 3)
     local = verts - cfg.voxel_m + volume.origin
-    grads = np.gradient(volume.values, cfg.voxel_m)
-    g = np.stack([volume.sample(local, gk) for gk in grads], -1)
-    norm = np.linalg.norm(g, axis=-1, keepdims=True)
-    ok = norm[:, 0] > 1e-9
-    normals_local = -g[ok] / norm[ok]
-    return Surface(volume.to_world(local[ok]), normals_local @ box.rotation.T, volume)
+    normals = volume.outward_normals(local)
+    ok = np.linalg.norm(normals, axis=-1) > 0.5
+    return Surface(volume.to_world(local[ok]), normals[ok] @ box.rotation.T, volume)

@@ -289,10 +289,7 @@ def execute_action(
         SimWorld(spec) as world,
     ):
         for a in spec.actions[: action - 1]:  # the state before the action, as simulated
-            if a.type == "remove":
-                world.remove(a.object)
-            else:
-                world.move(a.object, a.translate_m, a.yaw_deg)
+            world.apply(a)
         ex = execute_move(world, todo.object, grasp, transform, cfg)
         if ex.success:
             capture_scan(world, spec.scan, tmp / "scan", label="executed")

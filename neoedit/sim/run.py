@@ -44,10 +44,8 @@ def simulate_scene(
                 "source_box": source.to_dict(),
                 "scan": scan_name,
             }
-            if action.type == "remove":
-                world.remove(action.object)
-            else:
-                transform = world.move(action.object, action.translate_m, action.yaw_deg)
+            transform = world.apply(action)
+            if transform is not None:
                 target = world.object_box(action.object)
                 entry.update(
                     {

@@ -17,7 +17,7 @@ from scipy.spatial.transform import Rotation
 from neoedit.errors import SpecError
 from neoedit.geometry import OrientedBox, rot_z, yaw_of_rotation
 from neoedit.geometry.transforms import apply_transform, make_transform
-from neoedit.sim.spec import ObjectSpec, SceneSpec
+from neoedit.sim.spec import ActionSpec, ObjectSpec, SceneSpec
 
 BACKGROUND_ID = 0
 TABLE_ID = 1
@@ -246,6 +246,14 @@ class SimWorld:
         pb.resetBaseVelocity(body, [0, 0, 0], [0, 0, 0], physicsClientId=self.client)
         self.settle()
         return self.object_pose(name) @ np.linalg.inv(before)
+
+    def apply(self, action: ActionSpec) -> np.ndarray | None:
+        """Perform one scene action (remove, or move by its translation and yaw); the realised
+        world transform of a move, None for a removal."""
+        if action.type == "remove":
+            self.remove(action.object)
+            return None
+        return self.move(action.object, action.translate_m, action.yaw_deg)
 
     def close(self) -> None:
         if pb.isConnected(self.client):
