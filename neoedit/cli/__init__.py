@@ -17,7 +17,9 @@ from neoedit.cli.history import DiffCommand, LogCommand, RestoreCommand
 from neoedit.cli.language import QueryCommand
 from neoedit.cli.plan import PlanCommand
 from neoedit.cli.sim import SimBenchmarkCommand, SimExecuteCommand, SimSceneCommand
+from neoedit.cli.view import ViewCommand
 from neoedit.errors import NeoError
+from neoedit.utils.threads import configure_threads, parse_threads
 from neoedit.utils.validate import check_device, user_message
 
 SimCommands = Annotated[
@@ -45,14 +47,43 @@ Commands = Union[  # noqa: UP007
     Annotated[LogCommand, tyro.conf.subcommand("log")],
     Annotated[RestoreCommand, tyro.conf.subcommand("restore")],
     Annotated[DiffCommand, tyro.conf.subcommand("diff")],
+    Annotated[ViewCommand, tyro.conf.subcommand("view")],
 ]
+
+
+THREADS_HELP = (
+    "Every verb also takes --threads N (or NEO_THREADS=N): CPU threads of torch and numba "
+    "(default: the cores this process may use)."
+)
+
+
+def pop_threads(argv: list[str]) -> tuple[list[str], str | None]:
+    """``--threads N`` / ``--threads=N`` anywhere in ``argv`` (every verb takes it) -> the
+    remaining arguments and its value (None when absent; '' when the value is missing)."""
+    rest: list[str] = []
+    value: str | None = None
+    i = 0
+    while i < len(argv):
+        arg = argv[i]
+        if arg == "--threads":
+            value = argv[i + 1] if i + 1 < len(argv) else ""
+            i += 2
+            continue
+        if arg.startswith("--threads="):
+            value = arg.split("=", 1)[1]
+        else:
+            rest.append(arg)
+        i += 1
+    return rest, value
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``neo``; returns the exit status (0 ok, 2 bad input, 130 interrupted)."""
-    command = tyro.cli(Commands, prog="neo", args=argv)
+    args, threads = pop_threads(list(sys.argv[1:] if argv is None else argv))
+    command = tyro.cli(Commands, prog="neo", args=args, description=THREADS_HELP)
     err = Console(stderr=True)
     try:
+        configure_threads(None if threads is None else parse_threads(threads))
         check_device(getattr(command, "device", "auto"))
         command.run()
     except NeoError as e:

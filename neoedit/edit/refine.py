@@ -289,11 +289,16 @@ def refine_removal(
                 for b in boxes
             ]
         )
-        sigma = scene.field.density(pts)
-        loss = loss + cfg.lambda_reg * opacity_penalty(sigma)
-        if cfg.lambda_keep > 0 and len(keep_pts):
+        keep = cfg.lambda_keep > 0 and len(keep_pts) > 0
+        if keep:
             pick_k = torch.randint(0, len(keep_pts), (cfg.reg_points,), generator=gen).to(device)
-            alpha = 1.0 - torch.exp(-0.01 * scene.field.density(keep_pts[pick_k]))
+            pts = torch.cat([pts, keep_pts[pick_k]])
+        # one field query (and one hash-table gradient) for both point sets
+        sigma = scene.field.density(pts)
+        n_reg = len(pts) - (cfg.reg_points if keep else 0)
+        loss = loss + cfg.lambda_reg * opacity_penalty(sigma[:n_reg])
+        if keep:
+            alpha = 1.0 - torch.exp(-0.01 * sigma[n_reg:])
             loss = loss + cfg.lambda_keep * torch.mean(torch.abs(alpha - keep_alpha[pick_k]))
         return loss
 

@@ -37,6 +37,7 @@ class OccupancyGrid(nn.Module):
     density: torch.Tensor  # (R, R, R) cached density [1/m]
     n_updates: torch.Tensor  # () number of updates so far
     occupied: torch.Tensor  # (R, R, R) bool, derived from density (not saved)
+    core: torch.Tensor  # (R, R, R) bool, occupied before dilation (not saved)
 
     def __init__(self, cfg: OccupancyGridConfig, aabb: torch.Tensor):
         super().__init__()
@@ -47,16 +48,21 @@ class OccupancyGrid(nn.Module):
         self.register_buffer("n_updates", torch.zeros((), dtype=torch.long))
         # everything counts as occupied until the first update
         self.register_buffer("occupied", torch.ones((r, r, r), dtype=torch.bool), persistent=False)
+        # the cells above the threshold themselves (no dilation): what fast renders march
+        self.register_buffer("core", torch.ones((r, r, r), dtype=torch.bool), persistent=False)
 
     def refresh_mask(self) -> None:
-        """Occupied = cached density above the threshold, dilated by one cell so that a cell
-        whose probe point missed a thin surface is still marched."""
+        """Core = cached density above the threshold; occupied = core dilated by one cell, so
+        that a cell whose probe point missed a thin surface is still marched in training."""
         if int(self.n_updates) == 0:
             self.occupied.fill_(True)
+            self.core.fill_(True)
             return
         thresh = min(self.cfg.threshold, float(self.density.clamp_max(1e3).mean()))
-        above = (self.density > thresh).float()[None, None]
-        self.occupied.copy_(torch.nn.functional.max_pool3d(above, 3, stride=1, padding=1)[0, 0] > 0)
+        above = self.density > thresh
+        self.core.copy_(above)
+        dilated = torch.nn.functional.max_pool3d(above.float()[None, None], 3, stride=1, padding=1)
+        self.occupied.copy_(dilated[0, 0] > 0)
 
     def cell_index(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Flat cell index (N,) of world points and whether each is inside the box (N,)."""

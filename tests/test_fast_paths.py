@@ -1,0 +1,179 @@
+"""The speed paths agree with their references: the compiled march with the PyTorch one, the
+fast renderer with closed forms and with the training sampler; thread options."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import pytest
+import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from neoedit.cameras.rays import CameraTensors, RayBundle
+from neoedit.data import load_scene_data
+from neoedit.errors import NeoError
+from neoedit.geometry import OrientedBox
+from neoedit.rendering.intervals import cut_boxes, near_far_intervals
+from neoedit.rendering.march import march_occupied, march_occupied_torch, march_render
+from neoedit.rendering.occupancy import OccupancyGrid, OccupancyGridConfig, refresh_grid
+from neoedit.rendering.renderer import render_image
+from neoedit.scene import load_scene
+from neoedit.utils.threads import parse_threads, resolve_threads, set_wait_policy
+from tests.test_rendering import RecordingSphere, SphereField
+
+
+def _rays(n: int, seed: int) -> RayBundle:
+    g = torch.Generator().manual_seed(seed)
+    origins = (torch.rand(n, 3, generator=g) - 0.5) * 3.0
+    directions = torch.nn.functional.normalize(torch.randn(n, 3, generator=g), dim=-1)
+    return RayBundle(origins, directions, torch.ones(n))
+
+
+def _intervals(rays: RayBundle, boxes: list[OrientedBox]):
+    t0 = torch.zeros(len(rays))
+    intervals = near_far_intervals(t0, t0 + 3.0)
+    return cut_boxes(intervals, rays.origins, rays.directions, boxes) if boxes else intervals
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    seed=st.integers(0, 10_000),
+    fill=st.floats(0.05, 0.9),
+    boxes=st.lists(
+        st.builds(
+            OrientedBox,
+            st.tuples(st.floats(-0.5, 0.5), st.floats(-0.5, 0.5), st.floats(-0.5, 0.5)),
+            st.tuples(st.floats(0.1, 0.8), st.floats(0.1, 0.8), st.floats(0.1, 0.8)),
+            st.floats(-180, 180),
+        ),
+        max_size=2,
+    ),
+)
+def test_compiled_march_matches_the_pytorch_march(seed, fill, boxes):
+    rays = _rays(300, seed)
+    intervals = _intervals(rays, boxes)
+    grid = OccupancyGrid(OccupancyGridConfig(resolution=16), torch.tensor([[-1.0] * 3, [1.0] * 3]))
+    mask = torch.rand((16, 16, 16), generator=torch.Generator().manual_seed(seed)) < fill
+    t_ref, n_ref = march_occupied_torch(rays, intervals, grid, mask, 128)
+    t_fast, n_fast = march_occupied(rays, intervals, grid, mask, 128, backend="auto")
+    # a bin centre exactly on a cell face may fall either way in float32: allow a rare miss
+    same = n_ref == n_fast
+    assert same.float().mean() >= 0.98
+    assert (n_ref - n_fast).abs().max() <= 1
+    cols = torch.arange(128)[None, :] < n_ref[same, None]
+    torch.testing.assert_close(t_fast[same][cols], t_ref[same][cols], atol=2e-5, rtol=0)
+
+
+def test_march_render_matches_closed_form_sphere():
+    radius, sigma = 0.5, 4.0
+    field = SphereField(radius, sigma)
+    n = 200
+    offsets = torch.linspace(0.0, 0.49, n)
+    origins = torch.stack([offsets, torch.zeros(n), torch.full((n,), -3.0)], -1)
+    rays = RayBundle(origins, torch.tensor([[0.0, 0.0, 1.0]]).repeat(n, 1), torch.ones(n))
+    grid = OccupancyGrid(OccupancyGridConfig(resolution=64), field.aabb)
+    refresh_grid(grid, field.density)
+    intervals = near_far_intervals(torch.full((n,), 2.0), torch.full((n,), 4.0))
+    out = march_render(field, grid, rays, intervals, 2048, torch.zeros(3), dilated=True)
+    chord = 2 * torch.sqrt(radius**2 - offsets**2)
+    expected = 1 - torch.exp(-sigma * chord)
+    torch.testing.assert_close(out["accumulation"], expected, atol=4e-3, rtol=0)
+    torch.testing.assert_close(out["rgb"][:, 0], expected, atol=4e-3, rtol=0)
+    entry = 3.0 - chord / 2
+    mean_in = 1 / sigma - chord * torch.exp(-sigma * chord) / (1 - torch.exp(-sigma * chord))
+    torch.testing.assert_close(out["depth"], entry + mean_in, atol=8e-3, rtol=0)
+    # the occupied cells alone (the default) can only skip slivers of cells that the grid's
+    # probes missed: never more, and little less, than the exact value
+    core = march_render(field, grid, rays, intervals, 2048, torch.zeros(3))["accumulation"]
+    assert torch.all(core <= expected + 4e-3)
+    torch.testing.assert_close(core, expected, atol=0.02, rtol=0)
+    assert (core - expected).abs().mean() < 2e-3
+
+
+def test_early_termination_queries_less_and_changes_nothing_visible():
+    field = RecordingSphere(0.4, 400.0)  # opaque: rays stop right after entering
+    grid = OccupancyGrid(OccupancyGridConfig(resolution=32), field.aabb)
+    refresh_grid(grid, field.density)
+    n = 400
+    g = torch.Generator().manual_seed(0)
+    origins = torch.cat([(torch.rand(n, 2, generator=g) - 0.5) * 0.8, torch.full((n, 1), -3.0)], 1)
+    rays = RayBundle(origins, torch.tensor([[0.0, 0.0, 1.0]]).repeat(n, 1), torch.ones(n))
+    intervals = near_far_intervals(torch.full((n,), 2.0), torch.full((n,), 4.0))
+    field.queried.clear()
+    full = march_render(field, grid, rays, intervals, 512, torch.zeros(3), stop_transmittance=0.0)
+    n_full = sum(len(q) for q in field.queried)
+    field.queried.clear()
+    fast = march_render(field, grid, rays, intervals, 512, torch.zeros(3))
+    n_fast = sum(len(q) for q in field.queried)
+    assert n_fast < 0.5 * n_full
+    torch.testing.assert_close(fast["rgb"], full["rgb"], atol=2e-3, rtol=0)
+    torch.testing.assert_close(fast["depth"], full["depth"], atol=1e-3, rtol=0)
+
+
+def _psnr(a: torch.Tensor, b: torch.Tensor) -> float:
+    return -10 * math.log10(float(torch.mean((a - b) ** 2)))
+
+
+def test_fast_render_agrees_with_the_training_sampler(trained: Path, sim_root: Path):
+    scene = load_scene(trained)
+    data = load_scene_data(sim_root / "removal_1" / "pre")
+    cams = CameraTensors(data.cameras, torch.device("cpu"))
+    fast_cfg = scene.meta.render
+    slow_cfg = type(fast_cfg)(**{**vars(fast_cfg), "fast_render": False})
+    for i in data.split["test"]:
+        gt = torch.as_tensor(data.images[i]).float() / 255.0
+        args = (scene.field, scene.grid, cams, int(i), data.height, data.width)
+        fast = render_image(*args, fast_cfg, scene.background)
+        slow = render_image(*args, slow_cfg, scene.background)
+        assert _psnr(fast["rgb"], slow["rgb"]) > 30.0
+        assert _psnr(fast["rgb"], gt) > _psnr(slow["rgb"], gt) - 0.5
+
+
+def test_training_ends_with_the_fields_own_grid(trained: Path):
+    """The saved grid holds the trained field's density (not the running maximum)."""
+    scene = load_scene(trained)
+    before = scene.grid.density.clone()
+    refresh_grid(scene.grid, scene.field.density, samples=4, seed=0)
+    torch.testing.assert_close(scene.grid.density, before)
+    assert scene.meta.history[-1]["rays_per_s"] > 0
+
+
+def test_thread_options(monkeypatch: pytest.MonkeyPatch):
+    monkeypatch.delenv("NEO_THREADS", raising=False)
+    assert resolve_threads(None) >= 1
+    assert resolve_threads(3) == 3
+    monkeypatch.setenv("NEO_THREADS", "2")
+    assert resolve_threads(None) == 2
+    assert resolve_threads(1) == 1  # the option wins over the environment
+    for bad in ("0", "-1", "two"):
+        monkeypatch.setenv("NEO_THREADS", bad)
+        with pytest.raises(NeoError, match="NEO_THREADS"):
+            resolve_threads(None)
+    for bad in ("0", "x", ""):
+        with pytest.raises(NeoError, match="--threads"):
+            parse_threads(bad)
+    env: dict[str, str] = {}
+    set_wait_policy(env)
+    assert env == {"GOMP_SPINCOUNT": "1000"}
+    env = {"OMP_WAIT_POLICY": "ACTIVE"}
+    set_wait_policy(env)
+    assert env == {"OMP_WAIT_POLICY": "ACTIVE"}  # a user's choice is kept
+
+
+def test_cli_threads_option(sim_root: Path, capsys: pytest.CaptureFixture[str]):
+    from neoedit.cli import main, pop_threads
+    from neoedit.utils.threads import configure_threads
+
+    assert pop_threads(["info", "x", "--threads", "2"]) == (["info", "x"], "2")
+    assert pop_threads(["--threads=1", "info"]) == (["info"], "1")
+    data = str(sim_root / "removal_1" / "pre")
+    assert main(["info", data, "--threads", "0"]) == 2
+    assert "--threads must be a positive integer" in capsys.readouterr().err
+    before = torch.get_num_threads()
+    try:
+        assert main(["info", data, "--threads", "1"]) == 0
+        assert torch.get_num_threads() == 1
+    finally:
+        configure_threads(before)
