@@ -229,7 +229,7 @@ def contention_section(args: argparse.Namespace) -> dict:
     env = dict(os.environ)
 
     def start(kind: str, extra: list[str] | None = None) -> subprocess.Popen:
-        target = args.scene or args.out / "scene" if kind == "render" else args.out / "tmp"
+        target = (args.scene or args.out / "scene") if kind == "render" else args.out / "tmp"
         cmd = [*(extra or []), sys.executable, "-c", script, kind, str(args.data), str(target)]
         return subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, env=env)
 
@@ -240,11 +240,17 @@ def contention_section(args: argparse.Namespace) -> dict:
     a, b = start("train"), start("train")
     result["two_trainings_s"] = [seconds(a), seconds(b)]
     loop = start("render")
-    result["beside_render_s"] = seconds(start("train"))
-    loop.kill()
+    try:
+        result["beside_render_s"] = seconds(start("train"))
+    finally:
+        loop.kill()
+        loop.wait()
     busy = subprocess.Popen(["nice", "-n", "19", sys.executable, "-c", "while True: pass"])
-    result["beside_nice_busy_loop_s"] = seconds(start("train"))
-    busy.kill()
+    try:
+        result["beside_nice_busy_loop_s"] = seconds(start("train"))
+    finally:
+        busy.kill()
+        busy.wait()
     solo = result["solo_s"]
     result["slowdown"] = {
         "two_trainings": round(max(result["two_trainings_s"]) / solo, 2),

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import socket
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -57,6 +58,7 @@ class ViewCommand:
             raise NeoError("--max-side must be in 16..4096 and --fps in (0, 120]")
         if not Path(self.scene).exists():
             raise NeoError(f"scene not found: {self.scene}")
+        check_bindable(self.host, self.port)
         cfg = ViewerConfig(
             query=self.query,
             remove=self.remove,
@@ -74,3 +76,18 @@ class ViewCommand:
             console.print(f"neo view: {self.scene} at [bold]{app.url}[/] (Ctrl-C to stop)")
 
         serve(self.scene, self.host, self.port, resolve_device(self.device), cfg, ready)
+
+
+def check_bindable(host: str, port: int) -> None:
+    """A host this machine can serve on (viser waits forever for one it cannot bind); a
+    taken port is fine (viser moves on to the next free one)."""
+    try:
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
+    except socket.gaierror as e:
+        raise NeoError(f"--host {host!r} cannot be resolved ({e.strerror})") from None
+    family, _, _, _, address = infos[0]
+    with socket.socket(family, socket.SOCK_STREAM) as sock:
+        try:
+            sock.bind((address[0], 0))  # any free port: only the address is checked
+        except OSError as e:
+            raise NeoError(f"cannot serve on --host {host!r}: {e.strerror}") from None

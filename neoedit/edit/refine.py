@@ -39,6 +39,7 @@ from neoedit.fields.radiance import Field
 from neoedit.fields.suppressed import with_removals
 from neoedit.geometry import OrientedBox
 from neoedit.geometry.masks import project_box_mask
+from neoedit.rendering.occupancy import cells_in_boxes, refresh_grid
 from neoedit.rendering.renderer import render_chunked, render_rays
 from neoedit.rendering.volume import opacity_penalty
 from neoedit.scene import Scene
@@ -320,6 +321,10 @@ def refine_removal(
                 cut=boxes if preview and removal == "resample" else [],
                 suppress=boxes if preview and removal == "suppress" else [],
             )
+            if not preview:
+                # the patch has changed what the region holds: the fast renders march the
+                # grid's occupied cells, so refresh them first
+                refresh_grid(scene.grid, scene.field.density, cells_in_boxes(scene.grid, region))
             rendered, depth = render_crops(field_, scene, virtual, window, cut)
             timings["render_s"] += time.perf_counter() - t
             if preview:

@@ -2,8 +2,8 @@
 
 For each ray, walk ``n_bins`` even bins over its valid domain (the concatenated intervals,
 as :meth:`RayIntervals.domain_to_t`), and write the ray distance of every bin whose centre
-lies in an occupied grid cell, front to back. Nothing of size rays x bins is materialised,
-which is what makes it ~10x cheaper than the same march in PyTorch on a CPU.
+lies in an occupied grid cell, front to back. No (rays x bins x 3) points are built, which
+is what makes it much cheaper than the same march in PyTorch on a CPU.
 """
 
 from __future__ import annotations

@@ -69,7 +69,11 @@ def march_occupied(
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """:func:`march_occupied_torch`, by the compiled kernel for CPU tensors when numba is
     available (``backend``: 'auto', 'numba' or 'torch')."""
+    if backend not in ("auto", "numba", "torch"):
+        raise ValueError(f"unknown march backend {backend!r}")
     cpu = rays.origins.device.type == "cpu"
+    if backend == "numba" and not (cpu and _numba_march_available()):
+        raise ValueError("the numba march needs CPU tensors and numba")
     if backend == "torch" or not cpu or not _numba_march_available():
         return march_occupied_torch(rays, intervals, grid, mask, n_bins)
     from neoedit.rendering import _march_numba
@@ -123,7 +127,7 @@ def march_render(
     while len(active) and pos < n_bins:
         size = ROUND_SIZES[min(round_i, len(ROUND_SIZES) - 1)]
         cols = torch.arange(pos, min(pos + size, n_bins), device=device)
-        t = t_all[active][:, cols]  # (A, R)
+        t = t_all[:, pos : pos + len(cols)][active]  # (A, R)
         valid = cols[None, :] < count[active, None]
         pts = rays.origins[active, None, :] + t[..., None] * rays.directions[active, None, :]
         dirs = rays.directions[active, None, :].expand(*t.shape, 3)

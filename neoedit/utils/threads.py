@@ -70,15 +70,29 @@ def parse_threads(text: str) -> int:
     return n
 
 
+_BUDGET: list[int] = []
+"""The budget :func:`configure_threads` set (empty: none set)."""
+
+
 def configure_threads(requested: int | None = None) -> int:
-    """Apply the thread budget to torch and numba; returns it."""
+    """Apply the thread budget to torch and numba (in this thread; other threads that run
+    numba kernels call :func:`apply_thread_budget`); returns it."""
     import torch
 
     n = resolve_threads(requested)
     torch.set_num_threads(n)
+    _BUDGET[:] = [n]
+    apply_thread_budget()
+    return n
+
+
+def apply_thread_budget() -> None:
+    """numba's thread count is per thread: a worker thread (the viewer's render loop, its
+    commit) calls this first so its kernels keep to the process's budget."""
+    if not _BUDGET:
+        return
     try:
         import numba
     except ImportError:
-        return n
-    numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
-    return n
+        return
+    numba.set_num_threads(min(_BUDGET[0], numba.config.NUMBA_NUM_THREADS))  # type: ignore[attr-defined]

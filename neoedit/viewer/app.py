@@ -102,6 +102,7 @@ class ViewerServer:
         self._views: dict[int, ClientView] = {}
         self._views_lock = threading.Lock()
         self._commit_thread: threading.Thread | None = None
+        self._commit_start = threading.Lock()
         self.server = viser.ViserServer(host=host, port=port, label="neo view", verbose=verbose)
         try:
             self.scan = self._scan_views()
@@ -124,7 +125,12 @@ class ViewerServer:
         return f"http://{'localhost' if host == '0.0.0.0' else host}:{self.port}"
 
     def stop(self) -> None:
-        """Stop every render loop and the server (its port is free again)."""
+        """Stop every render loop and the server (its port is free again); a commit that is
+        running is finished first (a version is never left half-written)."""
+        commit = self._commit_thread
+        if commit is not None and commit.is_alive():
+            print("neo view: waiting for the running commit to finish ...", flush=True)
+            commit.join()
         with self._views_lock:
             views, self._views = list(self._views.values()), {}
         for view in views:
@@ -266,13 +272,15 @@ class ViewerServer:
     def commit(self, wait: bool = False) -> threading.Thread:
         """Run the pending edit in full in the background (the page stays usable); the new
         version is shown when it is written."""
-        if self.state.committing:
-            raise NeoError("a commit is already running: wait for it to finish")
-        if self.state.pending is None:
-            raise NeoError("nothing to commit: preview a removal or a move first")
-        thread = threading.Thread(target=self.panels.run_commit, name="neo-commit", daemon=True)
-        self._commit_thread = thread
-        thread.start()
+        with self._commit_start:  # two quick clicks start one commit
+            running = self._commit_thread is not None and self._commit_thread.is_alive()
+            if running or self.state.committing:
+                raise NeoError("a commit is already running: wait for it to finish")
+            if self.state.pending is None:
+                raise NeoError("nothing to commit: preview a removal or a move first")
+            thread = threading.Thread(target=self.panels.run_commit, name="neo-commit", daemon=True)
+            self._commit_thread = thread
+            thread.start()
         if wait:
             thread.join()
         return thread

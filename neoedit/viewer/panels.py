@@ -12,6 +12,7 @@ import numpy as np
 from neoedit.geometry import yaw_of_rotation
 from neoedit.geometry.transforms import wrap_deg
 from neoedit.language.localize import QueryResult
+from neoedit.utils.threads import apply_thread_budget
 from neoedit.viewer.versions import versions_markdown
 from neoedit.viewer.view import quat_to_matrix, yaw_quat
 
@@ -260,6 +261,7 @@ class Panels:
     def run_commit(self) -> None:
         """The commit thread's body: the full edit, its progress in the page, the new
         version listed and shown."""
+        apply_thread_budget()
         self.commit.disabled = True
         self.restore.disabled = True
         self.progress.value = 0.0

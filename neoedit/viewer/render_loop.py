@@ -26,6 +26,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from neoedit.utils.threads import apply_thread_budget
+
 RenderFn = Callable[[np.ndarray, float, int, int], tuple[np.ndarray, np.ndarray]]
 """(camera-to-world (4,4) OpenGL, vertical field of view [rad], width, height) ->
 (rgb (H,W,3) float in [0,1], depth (H,W) [m])."""
@@ -181,6 +183,7 @@ class RenderLoop:
             return None
 
     def _run(self) -> None:
+        apply_thread_budget()
         while (job := self._next_job()) is not None:
             serial, req, refine = job
             w, h = (req.width, req.height)

@@ -313,10 +313,10 @@ def _open_source(path: Path) -> tuple[SceneStore | None, str]:
         store = SceneStore(path)
         return store, store.current_dir().name
     if (path / MANIFEST).is_file():
-        store = find_store(path)
-        if store is None:
+        owner = find_store(path)
+        if owner is None:
             raise NeoError(f"{path} is a store version outside its store (no store.json beside it)")
-        store.info(path.name)
-        return store, path.name
+        owner.info(path.name)
+        return owner, path.name
     read_scene_meta(path)  # a scene folder, or one clear error
     return None, path.resolve().name

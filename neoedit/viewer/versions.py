@@ -94,6 +94,7 @@ def versions_markdown(entries: list[VersionEntry], shown: str) -> str:
 def new_version_path(store: SceneStore | None, parent_dir: Path, kind: str) -> Path:
     """Where a commit writes: ``STORE/<kind>_<k>`` or, beside a plain scene folder,
     ``<folder>_<kind>_<k>`` (the first k that is free)."""
+    parent_dir = Path(parent_dir).resolve()  # "." has no name
     for k in range(1, 10_000):
         out = (
             store.root / f"{kind}_{k}"
