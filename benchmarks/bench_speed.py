@@ -90,7 +90,8 @@ def train_section(args: argparse.Namespace) -> dict:
             marks.pop(0)
             value = trainer.evaluate()
             curve.append({"seconds": round(t_train, 1), "step": step, "psnr": round(value, 2)})
-            print(f"  {curve[-1]} {step * args.rays / t_train:.0f} rays/s", flush=True)
+            rays = step * trainer.cfg.rays_per_batch / t_train
+            print(f"  {curve[-1]} {rays:.0f} rays/s", flush=True)
     rays_per_s = step * trainer.cfg.rays_per_batch / t_train
     finish = getattr(trainer, "finish_grid", None)
     if finish is not None:
@@ -115,10 +116,20 @@ def train_section(args: argparse.Namespace) -> dict:
     }
 
 
+def open_views(scene_dir: Path, data_dir: Path):
+    """The scene, its dataset and that dataset's cameras (CPU)."""
+    data = load_scene_data(data_dir)
+    return load_scene(scene_dir, torch.device("cpu")), data, CameraTensors(data.cameras, "cpu")
+
+
+def render_view(scene, data, cams, index: int, cfg: RenderConfig) -> dict[str, torch.Tensor]:
+    return render_image(
+        scene.field, scene.grid, cams, index, data.height, data.width, cfg, scene.background
+    )
+
+
 def render_section(args: argparse.Namespace) -> dict:
-    scene = load_scene(args.scene or args.out / "scene", torch.device("cpu"))
-    data = load_scene_data(args.data)
-    cams = CameraTensors(data.cameras, torch.device("cpu"))
+    scene, data, cams = open_views(args.scene or args.out / "scene", args.data)
     test = data.split["test"]
     result = {}
     for name, fast in (("training sampler", False), ("fast march", True)):
@@ -127,29 +138,11 @@ def render_section(args: argparse.Namespace) -> dict:
             cfg.fast_render = fast
         elif fast:
             continue
-        render_image(
-            scene.field,
-            scene.grid,
-            cams,
-            int(test[0]),
-            data.height,
-            data.width,
-            cfg,
-            scene.background,
-        )  # warm-up (compilation)
+        render_view(scene, data, cams, int(test[0]), cfg)  # warm-up (compilation)
         errors, seconds = [], []
         for i in test:
             t0 = time.perf_counter()
-            out = render_image(
-                scene.field,
-                scene.grid,
-                cams,
-                int(i),
-                data.height,
-                data.width,
-                cfg,
-                scene.background,
-            )
+            out = render_view(scene, data, cams, int(i), cfg)
             seconds.append(time.perf_counter() - t0)
             gt = torch.as_tensor(data.images[i]).float() / 255.0
             errors.append(float(torch.mean((out["rgb"] - gt) ** 2)))
@@ -207,21 +200,10 @@ else:
 
 def render_loop(data_dir: Path, scene_dir: Path) -> None:
     """Render the scene's test views over and over (a competing renderer)."""
-    scene = load_scene(scene_dir, torch.device("cpu"))
-    data = load_scene_data(data_dir)
-    cams = CameraTensors(data.cameras, torch.device("cpu"))
+    scene, data, cams = open_views(scene_dir, data_dir)
     while True:
         for i in data.split["test"]:
-            render_image(
-                scene.field,
-                scene.grid,
-                cams,
-                int(i),
-                data.height,
-                data.width,
-                scene.meta.render,
-                scene.background,
-            )
+            render_view(scene, data, cams, int(i), scene.meta.render)
 
 
 def contention_section(args: argparse.Namespace) -> dict:
@@ -281,7 +263,6 @@ def main() -> None:
     )
     parser.add_argument("--only", nargs="*", choices=list(SECTIONS), default=list(SECTIONS))
     parser.add_argument("--fixed-steps", type=int, default=1000)
-    parser.add_argument("--rays", type=int, default=2048, help=argparse.SUPPRESS)
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     print("$ python " + shlex.join(sys.argv))

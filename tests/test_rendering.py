@@ -106,29 +106,33 @@ class SphereField(torch.nn.Module):
         return self.forward(pts, pts)[0]
 
 
+def sphere_rays(radius: float, sigma: float, n: int = 200):
+    """Rays along +z from z = -3 at impact parameters up to ``radius``, and their closed-form
+    accumulation and expected distance through a homogeneous sphere at the origin."""
+    offsets = torch.linspace(0.0, 0.98 * radius, n)
+    origins = torch.stack([offsets, torch.zeros(n), torch.full((n,), -3.0)], -1)
+    rays = RayBundle(origins, torch.tensor([[0.0, 0.0, 1.0]]).repeat(n, 1), torch.ones(n))
+    chord = 2 * torch.sqrt(radius**2 - offsets**2)
+    acc = 1 - torch.exp(-sigma * chord)
+    # entry point + mean of the truncated exponential over the chord
+    depth = 3.0 - chord / 2 + 1 / sigma - chord * torch.exp(-sigma * chord) / acc
+    return rays, acc, depth
+
+
 @pytest.mark.parametrize("with_grid", [False, True])
 def test_render_sphere_matches_closed_form(with_grid):
     radius, sigma = 0.5, 4.0
     field = SphereField(radius, sigma)
-    n = 200
-    offsets = torch.linspace(0.0, 0.49, n)  # impact parameters
-    origins = torch.stack([offsets, torch.zeros(n), torch.full((n,), -3.0)], -1)
-    dirs = torch.tensor([[0.0, 0.0, 1.0]]).repeat(n, 1)
-    rays = RayBundle(origins, dirs, torch.ones(n))
+    rays, expected_acc, expected_depth = sphere_rays(radius, sigma)
     grid = None
     if with_grid:
         grid = OccupancyGrid(OccupancyGridConfig(resolution=64, warmup_steps=10), field.aabb)
         grid.update(field.density, step=0)
     cfg = RenderConfig(n_march_samples=2048, n_coarse_samples=2048, n_samples=1024)
     out = render_rays(field, grid, rays, cfg, background=torch.zeros(3))
-    chord = 2 * torch.sqrt(radius**2 - offsets**2)
-    expected_acc = 1 - torch.exp(-sigma * chord)
     torch.testing.assert_close(out["accumulation"], expected_acc, atol=4e-3, rtol=0)
     torch.testing.assert_close(out["rgb"][:, 0], expected_acc, atol=4e-3, rtol=0)
-    # expected distance: entry point + mean of the truncated exponential over the chord
-    entry = 3.0 - chord / 2
-    mean_in = 1 / sigma - chord * torch.exp(-sigma * chord) / (1 - torch.exp(-sigma * chord))
-    torch.testing.assert_close(out["depth"], entry + mean_in, atol=8e-3, rtol=0)
+    torch.testing.assert_close(out["depth"], expected_depth, atol=8e-3, rtol=0)
 
 
 def test_weights_formula():

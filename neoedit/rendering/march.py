@@ -25,17 +25,10 @@ from __future__ import annotations
 import torch
 
 from neoedit.cameras.rays import RayBundle
+from neoedit.fields.hashgrid import numba_available
 from neoedit.fields.radiance import Field
 from neoedit.rendering.intervals import RayIntervals
 from neoedit.rendering.occupancy import OccupancyGrid
-
-
-def _numba_march_available() -> bool:
-    try:
-        import numba  # noqa: F401
-    except ImportError:
-        return False
-    return True
 
 
 def march_occupied_torch(
@@ -72,9 +65,9 @@ def march_occupied(
     if backend not in ("auto", "numba", "torch"):
         raise ValueError(f"unknown march backend {backend!r}")
     cpu = rays.origins.device.type == "cpu"
-    if backend == "numba" and not (cpu and _numba_march_available()):
+    if backend == "numba" and not (cpu and numba_available()):
         raise ValueError("the numba march needs CPU tensors and numba")
-    if backend == "torch" or not cpu or not _numba_march_available():
+    if backend == "torch" or not cpu or not numba_available():
         return march_occupied_torch(rays, intervals, grid, mask, n_bins)
     from neoedit.rendering import _march_numba
 

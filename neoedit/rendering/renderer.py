@@ -6,7 +6,7 @@ before sampling, so the preview of a removal needs no training.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import torch
@@ -183,10 +183,15 @@ def render_chunked(
     cfg: RenderConfig,
     background: torch.Tensor,
     boxes: Sequence[OrientedBox] = (),
+    before_chunk: Callable[[], None] | None = None,
 ) -> dict[str, torch.Tensor]:
-    """rgb (N,3), depth_z (N,) [m], accumulation (N,) of many rays, in chunks, no gradients."""
+    """rgb (N,3), depth_z (N,) [m], accumulation (N,) of many rays, in chunks, no gradients.
+    ``before_chunk()`` runs before each chunk (a caller that may abandon the render raises
+    there: the viewer, when the camera has moved on)."""
     parts: dict[str, list[torch.Tensor]] = {"rgb": [], "depth_z": [], "accumulation": []}
     for start in range(0, len(rays), cfg.chunk_rays):
+        if before_chunk is not None:
+            before_chunk()
         chunk = rays[start : start + cfg.chunk_rays]
         if cfg.fast_render and grid is not None:
             intervals = ray_intervals(field, chunk, cfg.near_m, boxes)

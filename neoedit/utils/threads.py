@@ -44,29 +44,23 @@ def resolve_threads(requested: int | None, environ: MutableMapping[str, str] = o
     """The thread count: ``requested`` (``--threads``), else ``$NEO_THREADS``, else the
     available cores. Anything but a positive integer is a clear error."""
     if requested is not None:
-        if requested < 1:
-            raise NeoError(f"--threads must be a positive integer, got {requested}")
-        return requested
+        return _positive(str(requested), "--threads")
     text = environ.get(ENV_VAR, "").strip()
-    if not text:
-        return available_cores()
+    return _positive(text, f"${ENV_VAR}") if text else available_cores()
+
+
+def parse_threads(text: str) -> int:
+    """The value of ``--threads`` as given on the command line."""
+    return _positive(text, "--threads")
+
+
+def _positive(text: str, source: str) -> int:
     try:
         n = int(text)
     except ValueError:
         n = 0
     if n < 1:
-        raise NeoError(f"${ENV_VAR} must be a positive integer, got {text!r}")
-    return n
-
-
-def parse_threads(text: str) -> int:
-    """The value of ``--threads`` as given on the command line."""
-    try:
-        n = int(text)
-    except ValueError:
-        raise NeoError(f"--threads must be a positive integer, got {text!r}") from None
-    if n < 1:
-        raise NeoError(f"--threads must be a positive integer, got {n}")
+        raise NeoError(f"{source} must be a positive integer, got {text!r}")
     return n
 
 

@@ -96,7 +96,6 @@ class ViewerState:
         self.query_result: QueryResult | None = None
         self._embeddings: tuple[torch.Tensor, torch.Tensor] | None = None
         self.pending: PendingEdit | None = None
-        self.commit_progress: tuple[str, float] | None = None
         """(stage, fraction done) while a commit runs."""
 
     # -- versions -------------------------------------------------------------------------
@@ -104,7 +103,9 @@ class ViewerState:
         """Every version, oldest first (a plain folder: itself and what this page committed)."""
         if self.store is not None:
             return store_entries(self.store)
-        return plain_entries(self._plain, self.selected)
+        with self._lock:  # a commit thread may add to it
+            plain = dict(self._plain)
+        return plain_entries(plain, self.selected)
 
     def path_of(self, name: str) -> Path:
         if self.store is not None:
@@ -257,7 +258,6 @@ class ViewerState:
                 raise NeoError("nothing to commit: preview a removal or a move first")
 
             def report(stage: str, fraction: float) -> None:
-                self.commit_progress = (stage, fraction)
                 if progress is not None:
                     progress(stage, fraction)
 
@@ -271,12 +271,12 @@ class ViewerState:
                 report,
             )
             if self.store is None:
-                self._plain[name] = out
+                with self._lock:
+                    self._plain[name] = out
             self._remember(name, child)
             self.select(name)
             return name
         finally:
-            self.commit_progress = None
             self._commit_lock.release()
 
     # -- rendering ------------------------------------------------------------------------

@@ -112,20 +112,17 @@ def render_view(
     h, w = int(cameras.height[0]), int(cameras.width[0])
     field_, boxes = scene.renderable()
     rays = CameraTensors(cameras, scene.field.aabb.device).image_rays(0, h, w)
-    cfg = scene.meta.render
-    chunk = max(int(cfg.chunk_rays), 1)
-    parts: dict[str, list[torch.Tensor]] = {"rgb": [], "depth_z": [], "accumulation": []}
-    for start in range(0, len(rays), chunk):
+
+    def check() -> None:
         if should_stop is not None and should_stop():
             raise RenderInterrupted
-        out = render_chunked(
-            field_, scene.grid, rays[start : start + chunk], cfg, scene.background, boxes
-        )
-        for key in parts:
-            parts[key].append(out[key])
+
+    out = render_chunked(
+        field_, scene.grid, rays, scene.meta.render, scene.background, boxes, before_chunk=check
+    )
     return {
-        key: torch.cat(v).reshape(h, w, *v[0].shape[1:]).float().cpu().numpy()
-        for key, v in parts.items()
+        key: value.reshape(h, w, *value.shape[1:]).float().cpu().numpy()
+        for key, value in out.items()
     }
 
 
