@@ -35,6 +35,7 @@ from safetensors.torch import load_file, save_file
 from neoedit.cameras.rays import CameraTensors
 from neoedit.data.scan import ScanCameras, dataset_cameras, scan_from_record
 from neoedit.errors import NeoError
+from neoedit.fields.background import Background
 from neoedit.fields.composed import moved_field
 from neoedit.fields.language import LanguageField, LanguageFieldConfig, TextEncoderSpec
 from neoedit.fields.patched import PatchedField
@@ -119,7 +120,13 @@ class Scene:
     """(P,3) surface points seen in the training views (where queries evaluate L(x))."""
 
     @property
-    def background(self) -> torch.Tensor:
+    def background(self) -> Background:
+        """The learned environment map of the field when it has one, else the constant
+        background colour (3,)."""
+        base = self.field.base if isinstance(self.field, PatchedField) else self.field
+        head = getattr(base, "background_head", None)
+        if head is not None:
+            return head
         return torch.tensor(
             self.meta.background_rgb, dtype=torch.float32, device=self.field.aabb.device
         )

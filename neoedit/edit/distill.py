@@ -29,6 +29,7 @@ import torch
 from neoedit.cameras import Cameras
 from neoedit.cameras.rays import CameraTensors, RayBundle
 from neoedit.edit.points import box_points
+from neoedit.fields.background import Background
 from neoedit.fields.radiance import Field, RadianceField
 from neoedit.geometry import OrientedBox, points_in_box
 from neoedit.geometry.masks import box_pixels
@@ -150,7 +151,7 @@ def distill(
     pool: RayPool,
     boxes: Sequence[OrientedBox],
     render_cfg: RenderConfig,
-    background: torch.Tensor,
+    background: Background,
     cfg: DistillConfig,
     view: Field | None = None,
 ) -> dict[str, float]:
@@ -159,7 +160,7 @@ def distill(
     stage 2 (it should cover both the teacher's content and the student's old content).
     ``view`` is the field the losses see when ``student`` is a part of it (a patch of a
     :class:`~neoedit.fields.patched.PatchedField`); by default the student itself."""
-    device = background.device
+    device = student.aabb.device
     seen: Field = student if view is None else view
     student.requires_grad_(True)
     if cfg.freeze_mlp or cfg.mlp_lr_factor == 0:

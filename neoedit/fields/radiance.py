@@ -12,6 +12,7 @@ from typing import Protocol
 import torch
 from torch import nn
 
+from neoedit.fields.background import DirectionalBackground
 from neoedit.fields.encodings import spherical_harmonics_deg3
 from neoedit.fields.hashgrid import HashGridConfig, HashGridEncoding
 
@@ -28,6 +29,11 @@ class RadianceFieldConfig:
     """Width of the colour MLP (two hidden layers)."""
     density_bias: float = -1.0
     """Initial pre-activation bias of the density (exp activation)."""
+    learned_background: bool | None = None
+    """Rays leaving the box take the colour of a learned environment map
+    (:mod:`neoedit.fields.background`) instead of the constant background colour. Default
+    (None): learned for photos without an alpha channel (real captures see a room beyond the
+    box), constant for RGBA renders such as NEO-Sim."""
 
 
 class Field(Protocol):
@@ -82,6 +88,7 @@ class RadianceField(nn.Module):
             nn.ReLU(),
             nn.Linear(cfg.hidden_dim_color, 3),
         )
+        self.background_head = DirectionalBackground() if cfg.learned_background else None
 
     def normalize(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """World points (N,3) -> unit-cube coordinates (N,3) and an inside-the-box mask (N,)."""

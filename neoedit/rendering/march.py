@@ -25,6 +25,7 @@ from __future__ import annotations
 import torch
 
 from neoedit.cameras.rays import RayBundle
+from neoedit.fields.background import Background, background_colors
 from neoedit.fields.hashgrid import numba_available
 from neoedit.fields.radiance import Field
 from neoedit.rendering.intervals import RayIntervals
@@ -98,7 +99,7 @@ def march_render(
     rays: RayBundle,
     intervals: RayIntervals,
     n_bins: int,
-    background: torch.Tensor,
+    background: Background,
     stop_transmittance: float = 1e-3,
     dilated: bool = False,
 ) -> dict[str, torch.Tensor]:
@@ -139,6 +140,6 @@ def march_render(
         alive = (trans[active] > stop_transmittance) & (count[active] > pos)
         active = active[alive]
     acc = 1.0 - trans
-    rgb = rgb + trans[:, None] * background
+    rgb = rgb + trans[:, None] * background_colors(background, rays.directions)
     depth = depth / acc.clamp_min(1e-6)
     return {"rgb": rgb, "depth": depth, "depth_z": depth * rays.z_scale, "accumulation": acc}

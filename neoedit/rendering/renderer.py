@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import torch
 
 from neoedit.cameras.rays import CameraTensors, RayBundle
+from neoedit.fields.background import Background, background_colors
 from neoedit.fields.radiance import Field
 from neoedit.geometry import OrientedBox
 from neoedit.geometry.rays import ray_aabb
@@ -146,7 +147,7 @@ def render_rays(
     grid: OccupancyGrid | None,
     rays: RayBundle,
     cfg: RenderConfig,
-    background: torch.Tensor,
+    background: Background,
     boxes: Sequence[OrientedBox] = (),
     jitter: bool = False,
     generator: torch.Generator | None = None,
@@ -165,7 +166,8 @@ def render_rays(
     sigma = torch.zeros(n * m, device=pts.device, dtype=sigma_k.dtype).index_put((idx,), sigma_k)
     rgb = torch.zeros(n * m, 3, device=pts.device, dtype=rgb_k.dtype).index_put((idx,), rgb_k)
     weights = render_weights(sigma.reshape(n, m), samples.deltas)
-    out = composite(weights, rgb.reshape(n, m, 3), samples.t_mid, background)
+    bg = background_colors(background, rays.directions)
+    out = composite(weights, rgb.reshape(n, m, 3), samples.t_mid, bg)
     out["depth_z"] = out["depth"] * rays.z_scale
     out["weights"] = weights
     lo, hi = samples.bin_bounds()
@@ -181,7 +183,7 @@ def render_chunked(
     grid: OccupancyGrid | None,
     rays: RayBundle,
     cfg: RenderConfig,
-    background: torch.Tensor,
+    background: Background,
     boxes: Sequence[OrientedBox] = (),
     before_chunk: Callable[[], None] | None = None,
 ) -> dict[str, torch.Tensor]:
@@ -211,7 +213,7 @@ def render_image(
     height: int,
     width: int,
     cfg: RenderConfig,
-    background: torch.Tensor,
+    background: Background,
     boxes: Sequence[OrientedBox] = (),
 ) -> dict[str, torch.Tensor]:
     """rgb (H,W,3), depth_z (H,W) [m], accumulation (H,W) of camera ``index``."""

@@ -79,6 +79,16 @@ def median_camera_distance(data: SceneData) -> float:
     return float(np.median(np.linalg.norm(data.cameras.camera_to_world[:, :3, 3] - center, axis=1)))
 
 
+def _field_config(cfg: RadianceFieldConfig | None, data: SceneData) -> RadianceFieldConfig:
+    """The field config with its data-dependent default resolved: a learned background for
+    photos (no alpha channel, or an alpha that is opaque everywhere)."""
+    cfg = cfg or RadianceFieldConfig()
+    if cfg.learned_background is None:
+        photos = data.alpha is None or bool((data.alpha == 255).all())
+        cfg = dataclasses.replace(cfg, learned_background=photos)
+    return cfg
+
+
 def scene_box(data: SceneData, margin_m: float = 0.02) -> list[list[float]]:
     """Scene box: the dataset's ``scene_aabb`` if given; otherwise a cube around the point
     the cameras look at, reaching out to the median camera distance (so it holds what an
@@ -111,7 +121,11 @@ class Trainer:
         # Known opacity (RGBA data) -> train over random background colours, so the field
         # cannot paint the background colour into the scene as fog.
         self.alpha = None
-        if cfg.random_background and data.alpha is not None:
+        if (
+            cfg.random_background
+            and data.alpha is not None
+            and not scene.meta.field.learned_background
+        ):
             self.alpha = torch.as_tensor(data.alpha[train], device=device)
         # nerfstudio mask_path: pixels whose mask is 0 are left out of the loss
         self.loss_mask = (
@@ -321,7 +335,7 @@ def train(
             data_path=str(Path(data_path).resolve()),
             aabb_m=scene_box(data),
             background_rgb=list(data.background_rgb or (1.0, 1.0, 1.0)),
-            field=field_cfg or RadianceFieldConfig(),
+            field=_field_config(field_cfg, data),
             grid=grid_cfg or OccupancyGridConfig(),
             render=render_cfg,
             train=dataclasses.asdict(cfg),

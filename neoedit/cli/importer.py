@@ -1,0 +1,185 @@
+"""``neo import colmap|llff``: a user's capture (COLMAP model or LLFF poses) -> a
+nerfstudio dataset that ``neo info`` and ``neo train`` read."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Annotated, Union
+
+import tyro
+from rich.console import Console
+
+from neoedit.data.capture import Capture
+from neoedit.data.importer import ImportConfig, ImportReport, import_capture
+from neoedit.data.orient import OrientConfig
+from neoedit.data.pieces import PieceCheckConfig
+from neoedit.data.sfm import SfMConfig
+from neoedit.errors import NeoError
+from neoedit.utils.io import check_writable_output
+
+
+@dataclass
+class _ImportBase:
+    src: tyro.conf.Positional[Path]
+    """The capture: a COLMAP project (sparse/0 + images), a model folder, or an LLFF folder
+    (poses_bounds.npy + images)."""
+    out: Path
+    """New dataset folder (transforms.json + images/)."""
+    images: Path | None = None
+    """Photo folder when it is not 'images' beside the model."""
+    max_width: int | None = None
+    """Downscale the photos to at most this width in pixels (aspect kept); default: keep."""
+    piece: str = "check"
+    """'check': stop with an explanation when the model is broken into inconsistent pieces;
+    'largest': import the largest consistent piece; 'all': every photo anyway; or a piece
+    number (1 = the first in name order)."""
+    holdout_every: int = 8
+    """Every n-th photo (in name order) is held out for evaluation."""
+    orient: OrientConfig = field(default_factory=OrientConfig)
+    check: PieceCheckConfig = field(default_factory=PieceCheckConfig)
+    overwrite: bool = False
+    """Replace ``out`` if it is a dataset an earlier import wrote."""
+
+    def read(self) -> Capture:
+        raise NotImplementedError
+
+    def run(self) -> None:
+        _check_options(self.max_width, self.orient)
+        cfg = ImportConfig(self.max_width, self.piece, self.holdout_every, self.orient, self.check)
+        check_writable_output(
+            self.out, [self.src, self.images], kind="dataset", overwrite=self.overwrite
+        )
+        report = import_capture(self.read(), self.out, cfg, overwrite=self.overwrite)
+        print_report(report)
+
+
+@dataclass
+class ImportColmapCommand(_ImportBase):
+    """Import a COLMAP sparse model (binary or text): undistort, orient z-up, scale, write
+    a nerfstudio dataset."""
+
+    def read(self) -> Capture:
+        from neoedit.data.colmap import read_colmap
+
+        return read_colmap(self.src, self.images)
+
+
+@dataclass
+class ImportLLFFCommand(_ImportBase):
+    """Import an LLFF capture (poses_bounds.npy): orient z-up, scale, write a nerfstudio
+    dataset."""
+
+    def read(self) -> Capture:
+        from neoedit.data.llff import read_llff
+
+        return read_llff(self.src, self.images)
+
+
+def _check_options(max_width: int | None, orient: OrientConfig) -> None:
+    if max_width is not None and max_width < 16:
+        raise NeoError(f"--max-width must be at least 16 px, got {max_width}")
+    for name in ("scale", "camera_distance_m"):
+        value = getattr(orient, name)
+        if value is not None and not (value > 0 and value < float("inf")):
+            raise NeoError(
+                f"--orient.{name.replace('_', '-')} must be a positive number, got {value}"
+            )
+
+
+ImportCommands = Annotated[
+    Union[  # noqa: UP007 (tyro reads the Union)
+        Annotated[ImportColmapCommand, tyro.conf.subcommand("colmap")],
+        Annotated[ImportLLFFCommand, tyro.conf.subcommand("llff")],
+    ],
+    tyro.conf.subcommand(
+        "import", description="A COLMAP model or LLFF capture -> a nerfstudio dataset."
+    ),
+]
+
+
+def print_report(report: ImportReport) -> None:
+    c = Console()
+    o = report.orientation
+    c.print(
+        f"[bold]{report.out}[/]: {report.frames} frames of {report.size[0]}x{report.size[1]} "
+        f"({report.chosen})"
+    )
+    if len(report.pieces) > 1:
+        c.print(f"[yellow]the model is in {len(report.pieces)} inconsistent pieces:[/]")
+        for first, last, n in report.pieces:
+            c.print(f"  {first}..{last}: {n} photos")
+    c.print(f"up: {o.up_source}; scale x{o.scale:.4g} ({o.scale_source})")
+    if o.scale_source.startswith("ASSUMED"):
+        c.print(
+            "[yellow]the scale is assumed[/]: give --orient.camera-distance-m (or "
+            "--orient.scale) for metric edits and grasps"
+        )
+    for note in o.notes:
+        c.print(f"[yellow]{note}[/]")
+    box = o.aabb_m.round(3).tolist()
+    c.print(f"scene box (m): {box}")
+
+
+@dataclass
+class ProcessCommand:
+    """Photos or a video -> structure-from-motion on the CPU (pycolmap) -> a nerfstudio
+    dataset (oriented, scaled, undistorted; the COLMAP model kept in DATA/colmap)."""
+
+    src: tyro.conf.Positional[Path]
+    """A folder of photos (in capture order) or a video file."""
+    out: Path
+    """New dataset folder."""
+    sfm: SfMConfig = field(default_factory=SfMConfig)
+    max_width: int | None = None
+    """Downscale the photos to at most this width in pixels; default: keep."""
+    piece: str = "check"
+    """As for ``neo import``: what to do when the model is inconsistent."""
+    holdout_every: int = 8
+    orient: OrientConfig = field(default_factory=OrientConfig)
+    overwrite: bool = False
+
+    def run(self) -> None:
+        import shutil
+        import tempfile
+        import time
+
+        from neoedit.data.colmap import read_colmap
+        from neoedit.data.sfm import VIDEO_SUFFIXES, run_sfm, video_frames
+
+        src = Path(self.src)
+        if not src.exists():
+            raise NeoError(f"not found: {src}")
+        is_video = src.is_file() and src.suffix in VIDEO_SUFFIXES
+        if src.is_file() and not is_video:
+            raise NeoError(f"{src}: not a photo folder or a video ({', '.join(VIDEO_SUFFIXES)})")
+        _check_options(self.max_width, self.orient)
+        check_writable_output(self.out, [src], kind="dataset", overwrite=self.overwrite)
+        Path(self.out).absolute().parent.mkdir(parents=True, exist_ok=True)
+        work = Path(
+            tempfile.mkdtemp(
+                prefix=f".{Path(self.out).name}.sfm-", dir=Path(self.out).absolute().parent
+            )
+        )
+        try:
+            t0 = time.perf_counter()
+            images = src
+            if is_video:
+                images = work / "frames"
+                video_frames(src, images, self.sfm.video_frames)
+            result = run_sfm(images, work, self.sfm)
+            seconds = time.perf_counter() - t0
+            capture = read_colmap(result.model, images)
+            cfg = ImportConfig(self.max_width, self.piece, self.holdout_every, self.orient)
+
+            def keep_model(folder: Path) -> None:
+                shutil.copytree(result.model, folder / "colmap" / "sparse" / "0")
+
+            report = import_capture(capture, self.out, cfg, self.overwrite, extras=keep_model)
+        finally:
+            shutil.rmtree(work, ignore_errors=True)
+        Console().print(
+            f"structure-from-motion: {result.registered} of {result.total} photos registered "
+            f"({result.models} model{'s' if result.models > 1 else ''}) in {seconds:.0f} s"
+        )
+        print_report(report)

@@ -1,0 +1,197 @@
+"""Capture -> nerfstudio dataset: check it is one consistent piece, orient and scale it,
+undistort and downscale the photos, write ``transforms.json`` (atomically, into a new
+folder). ``neo import colmap|llff`` is a thin wrapper around :func:`import_capture`."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from neoedit.data.capture import Capture, Lens
+from neoedit.data.orient import Orientation, OrientConfig, orient
+from neoedit.data.pieces import PairCheck, PieceCheckConfig, find_pieces
+from neoedit.errors import DataError
+from neoedit.utils.io import atomic_directory, atomic_write_json
+from neoedit.utils.progress import track
+
+PIECE_CHOICES = ("check", "largest", "all")
+
+
+@dataclass
+class ImportConfig:
+    max_width: int | None = None
+    """Downscale the photos to at most this width in pixels (aspect kept); None keeps them."""
+    piece: str = "check"
+    """'check': stop with an explanation when the model is broken into pieces; 'largest':
+    import the largest consistent piece; 'all': import every photo anyway; or a piece
+    number (1 = the first in name order)."""
+    holdout_every: int = 8
+    """Every n-th photo (in name order) is held out for evaluation."""
+    orient: OrientConfig = field(default_factory=OrientConfig)
+    pieces: PieceCheckConfig = field(default_factory=PieceCheckConfig)
+
+
+@dataclass
+class ImportReport:
+    out: Path
+    frames: int
+    size: tuple[int, int]
+    pieces: list[tuple[str, str, int]]
+    """(first name, last name, photos) of every consistent piece."""
+    chosen: str
+    orientation: Orientation
+    checks: list[PairCheck]
+
+
+def _choose(capture: Capture, pieces: list[np.ndarray], choice: str) -> tuple[np.ndarray, str]:
+    spans = [f"{capture.names[p[0]]}..{capture.names[p[-1]]} ({len(p)} photos)" for p in pieces]
+    if choice == "all" or len(pieces) == 1:
+        return np.arange(len(capture)), "all photos" + (" (one piece)" if len(pieces) == 1 else "")
+    if choice == "largest":
+        k = int(np.argmax([len(p) for p in pieces]))
+        return pieces[k], f"piece {k + 1} of {len(pieces)}: {spans[k]}"
+    if choice.isdigit() and 1 <= int(choice) <= len(pieces):
+        k = int(choice) - 1
+        return pieces[k], f"piece {k + 1} of {len(pieces)}: {spans[k]}"
+    listing = "\n".join(f"  piece {k + 1}: {s}" for k, s in enumerate(spans))
+    if choice == "check":
+        raise DataError(
+            f"{capture.source}: this model is broken into {len(pieces)} inconsistent pieces "
+            "(consecutive photos match each other but not under the model's poses, so a field "
+            f"trained on all of them would be blurry):\n{listing}\nre-run structure-from-motion "
+            "(neo process), or import one piece with --piece largest or --piece N "
+            "(--piece all imports everything anyway)"
+        )
+    raise DataError(
+        f"--piece must be one of {', '.join(PIECE_CHOICES)} or 1..{len(pieces)}, got {choice!r}"
+    )
+
+
+def undistort_lens(lens: Lens, scale: float) -> tuple[np.ndarray, Any, Any, tuple[int, int]]:
+    """New pinhole K (COLMAP pixel convention) at ``scale``, remap tables and output size.
+    The undistorted image keeps only valid pixels (no black border)."""
+    import cv2
+
+    w, h = lens.width, lens.height
+    k_cv = lens.matrix().copy()
+    k_cv[:2, 2] -= 0.5  # OpenCV's pixel centres sit on integers, COLMAP's on +0.5
+    dist = lens.distortion()
+    new_k = (
+        cv2.getOptimalNewCameraMatrix(k_cv, dist, (w, h), 0.0, (w, h))[0]
+        if lens.distorted
+        else k_cv
+    )
+    size = (max(1, round(w * scale)), max(1, round(h * scale)))
+    out_k = new_k.copy()
+    out_k[0] *= size[0] / w
+    out_k[1] *= size[1] / h
+    out_k[:2, 2] = (new_k[:2, 2] + 0.5) * np.array([size[0] / w, size[1] / h])
+    if not lens.distorted:
+        return out_k, None, None, size
+    map1, map2 = cv2.initUndistortRectifyMap(k_cv, dist, None, new_k, (w, h), cv2.CV_32FC1)
+    return out_k, map1, map2, size
+
+
+def _convert(capture: Capture, i: int, scale: float, maps: dict) -> tuple[np.ndarray, np.ndarray]:
+    import cv2
+
+    lens = capture.lenses[i]
+    key = (lens.model, tuple(lens.params), lens.width, lens.height)
+    if key not in maps:
+        maps[key] = undistort_lens(lens, scale)
+    k, map1, map2, size = maps[key]
+    image = cv2.imread(str(capture.image_dir / capture.names[i]), cv2.IMREAD_COLOR)
+    if image is None:
+        raise DataError(f"cannot read image {capture.image_dir / capture.names[i]}")
+    if image.shape[:2] != (lens.height, lens.width):
+        raise DataError(
+            f"{capture.names[i]} is {image.shape[1]}x{image.shape[0]} but its camera says "
+            f"{lens.width}x{lens.height}"
+        )
+    if map1 is not None:
+        image = cv2.remap(image, map1, map2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+    if size != (lens.width, lens.height):
+        image = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
+    return image, k
+
+
+def import_capture(
+    capture: Capture,
+    out: Path,
+    cfg: ImportConfig,
+    overwrite: bool = False,
+    extras: Callable[[Path], None] | None = None,
+) -> ImportReport:
+    """Write ``capture`` as a nerfstudio dataset in the new folder ``out``; ``extras(folder)``
+    adds files to it before it is published."""
+    import cv2
+
+    sizes = {(lens.width, lens.height) for lens in capture.lenses}
+    if len(sizes) != 1:
+        raise DataError(
+            f"{capture.source}: photos of several sizes {sorted(sizes)}; neoedit needs one size"
+        )
+    if cfg.holdout_every < 2:
+        raise DataError(f"--holdout-every must be >= 2, got {cfg.holdout_every}")
+    pieces, checks = find_pieces(capture, cfg.pieces)
+    index, chosen = _choose(capture, pieces, cfg.piece)
+    part = capture.subset(index)
+    if len(part) < 3:
+        raise DataError(f"only {len(part)} photos to import; need at least 3")
+    frame = orient(part, cfg.orient)
+    width = next(iter(sizes))[0]
+    scale = min(1.0, cfg.max_width / width) if cfg.max_width else 1.0
+    maps: dict = {}
+    frames, train, test = [], [], []
+    with atomic_directory(out, overwrite=overwrite, kind="dataset") as tmp:
+        (tmp / "images").mkdir()
+        for j in track(range(len(part)), "undistorting photos"):
+            image, k = _convert(part, j, scale, maps)
+            name = f"images/{Path(part.names[j]).stem}.png"
+            if not cv2.imwrite(str(tmp / name), image):
+                raise DataError(f"cannot write {out / name}")
+            c2w = frame.transform @ part.camera_to_world[j]
+            c2w[:3, :3] /= frame.scale
+            frames.append(_frame_entry(name, c2w, k, image.shape))
+            (test if j % cfg.holdout_every == 0 else train).append(name)
+        meta = {
+            "camera_model": "OPENCV",
+            "frames": frames,
+            "train_filenames": train,
+            "test_filenames": test,
+            "scene_aabb": np.round(frame.aabb_m, 5).tolist(),
+            "neoedit_import": {
+                "source": str(capture.source),
+                "photos": len(capture),
+                "imported": chosen,
+                "pieces": [[part_span(capture, p), len(p)] for p in pieces],
+                "orientation": frame.to_dict(),
+            },
+        }
+        atomic_write_json(tmp / "transforms.json", meta)
+        if extras is not None:
+            extras(tmp)
+    spans = [(capture.names[p[0]], capture.names[p[-1]], len(p)) for p in pieces]
+    h, w = frames[0]["h"], frames[0]["w"]
+    return ImportReport(Path(out), len(frames), (w, h), spans, chosen, frame, checks)
+
+
+def part_span(capture: Capture, index: np.ndarray) -> str:
+    return f"{capture.names[index[0]]}..{capture.names[index[-1]]}"
+
+
+def _frame_entry(name: str, c2w: np.ndarray, k: np.ndarray, shape: tuple) -> dict:
+    return {
+        "file_path": name,
+        "transform_matrix": np.round(c2w, 9).tolist(),
+        "fl_x": float(k[0, 0]),
+        "fl_y": float(k[1, 1]),
+        "cx": float(k[0, 2]),
+        "cy": float(k[1, 2]),
+        "w": int(shape[1]),
+        "h": int(shape[0]),
+    }

@@ -1,0 +1,183 @@
+"""World frame of an imported capture: z up from the support plane, origin on that plane
+under the object the cameras look at, metric scale, and a scene box.
+
+Structure-from-motion returns poses in an arbitrary frame and scale. The edit boxes of
+neoedit are yaw-only about z and its query and edit defaults are in metres, so an import
+turns the model into a z-up metric frame:
+
+* **up**: the normal of the dominant plane of the sparse points (RANSAC), turned towards
+  the cameras; without points (LLFF) or without a dominant plane, the mean camera up.
+* **origin**: the point the cameras' optical axes pass closest to (least squares),
+  dropped onto the plane.
+* **scale**: a given factor, or the metric median distance of the cameras to that point
+  (``camera_distance_m``; when nothing is given it is *assumed*, and the dataset says so).
+* **box**: horizontally the disc the cameras circle (or look into), vertically from just
+  below the plane to above the highest sparse point inside it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from neoedit.data.capture import Capture
+from neoedit.errors import DataError
+from neoedit.geometry.plane import fit_plane
+
+ASSUMED_CAMERA_DISTANCE_M = 0.5
+
+
+@dataclass
+class OrientConfig:
+    scale: float | None = None
+    """Multiply the model's units by this to get metres (overrides ``camera_distance_m``)."""
+    camera_distance_m: float | None = None
+    """Known median distance of the cameras to the object they look at, in metres. Without
+    it (and without ``scale``) 0.5 m is assumed: the scale is then only roughly metric."""
+    plane_inlier_fraction: float = 0.01
+    """Plane inlier distance as a fraction of the median camera distance."""
+    min_plane_share: float = 0.15
+    """The plane must hold this share of the sparse points to define up."""
+    max_plane_tilt_deg: float = 25.0
+    """The support plane's normal is within this angle of the mean camera up (so a wall
+    with many points behind the object is not taken for the floor)."""
+    box_extent: float = 1.5
+    """Horizontal half-size of the box as a multiple of the cameras' median distance from
+    the vertical through the origin (beyond it, what the photos see is left to the learned
+    background)."""
+    box_margin: float = 0.15
+    """Box growth on each side, as a fraction of the median camera distance."""
+
+
+@dataclass
+class Orientation:
+    transform: np.ndarray
+    """(4,4) similarity: model coordinates -> metric world (z up)."""
+    scale: float
+    scale_source: str
+    up_source: str
+    aabb_m: np.ndarray
+    """(2,3) scene box in the new frame."""
+    notes: list[str] = field(default_factory=list)
+
+    def to_dict(self) -> dict:
+        return {
+            "transform": np.round(self.transform, 9).tolist(),
+            "scale": self.scale,
+            "scale_source": self.scale_source,
+            "up_source": self.up_source,
+            "notes": self.notes,
+        }
+
+
+def look_centre(camera_to_world: np.ndarray) -> np.ndarray:
+    """The point closest (least squares) to all optical axes (OpenGL: the camera looks -z)."""
+    origins = camera_to_world[:, :3, 3]
+    dirs = -camera_to_world[:, :3, 2]
+    dirs = dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
+    proj = np.eye(3)[None] - dirs[:, :, None] * dirs[:, None, :]
+    a = proj.sum(0)
+    b = (proj @ origins[:, :, None]).sum(0)[:, 0]
+    if np.linalg.cond(a) > 1e8:  # parallel axes (a forward-facing capture): in front of them
+        return origins.mean(0) + dirs.mean(0) * np.median(
+            np.linalg.norm(origins - origins.mean(0), axis=1) + 1.0
+        )
+    return np.linalg.solve(a, b)
+
+
+def _camera_up(capture: Capture) -> tuple[np.ndarray, str]:
+    """Up from the cameras alone: the normal of the plane of their centres when they circle
+    the object (a walk around it at one height), else their mean up axis."""
+    cam_up = capture.camera_to_world[:, :3, 1].mean(0)
+    cam_up /= max(float(np.linalg.norm(cam_up)), 1e-12)
+    centres = capture.centres - capture.centres.mean(0)
+    if len(centres) >= 5:
+        _, spread, axes = np.linalg.svd(centres, full_matrices=False)
+        ring = axes[2] if axes[2] @ cam_up >= 0 else -axes[2]
+        if spread[2] < 0.35 * spread[1] and ring @ cam_up > np.cos(np.radians(60)):
+            return ring, "plane of the camera centres"
+    return cam_up, "mean camera up"
+
+
+def _support(
+    capture: Capture, centre: np.ndarray, distance: float, cfg: OrientConfig
+) -> tuple[np.ndarray, float, str]:
+    """(up, height of the support surface along up, how up was found)."""
+    ref, ref_source = _camera_up(capture)
+    pts = capture.points[np.linalg.norm(capture.points - centre, axis=1) < 1.5 * distance]
+    if len(pts) >= 50:
+        plane = fit_plane(
+            pts,
+            cfg.plane_inlier_fraction * distance,
+            near_normal=ref,
+            max_angle_deg=cfg.max_plane_tilt_deg,
+        )
+        if plane is not None and plane.inliers.mean() >= cfg.min_plane_share:
+            plane = plane if plane.normal @ ref > 0 else plane.flipped()
+            if (plane.signed_distance(capture.centres) > 0).mean() >= 0.9:
+                return plane.normal, plane.offset, "support plane of the sparse points"
+    if len(pts) >= 10:  # the lowest points near the object: its foot on the support
+        return ref, float(np.percentile(pts @ ref, 2)), ref_source + "; floor at the lowest points"
+    return ref, float(centre @ ref), ref_source + "; no points: origin at the look centre"
+
+
+def _frame(up: np.ndarray, cam_axes: np.ndarray) -> np.ndarray:
+    """Rotation whose rows are the new x, y, z axes (z = up, x = the mean camera right
+    projected on the plane)."""
+    x = cam_axes - (cam_axes @ up) * up
+    if np.linalg.norm(x) < 1e-6:
+        x = np.cross(up, [1.0, 0.0, 0.0]) if abs(up[0]) < 0.9 else np.cross(up, [0.0, 1.0, 0.0])
+    x /= np.linalg.norm(x)
+    return np.stack([x, np.cross(up, x), up])
+
+
+def orient(capture: Capture, cfg: OrientConfig | None = None) -> Orientation:
+    """The metric z-up frame of ``capture`` and its scene box."""
+    cfg = cfg or OrientConfig()
+    centre = look_centre(capture.camera_to_world)
+    distance = float(np.median(np.linalg.norm(capture.centres - centre, axis=1)))
+    if not np.isfinite(distance) or distance <= 0:
+        raise DataError(f"{capture.source}: the cameras have no common point to look at")
+    up, floor, up_source = _support(capture, centre, distance, cfg)
+    origin = centre - (centre @ up - floor) * up
+    rot = _frame(up, capture.camera_to_world[:, :3, 0].mean(0))
+    if cfg.scale is not None:
+        scale, source = cfg.scale, "given factor"
+    elif cfg.camera_distance_m is not None:
+        scale, source = (
+            cfg.camera_distance_m / distance,
+            f"camera distance {cfg.camera_distance_m} m (given)",
+        )
+    else:
+        scale = ASSUMED_CAMERA_DISTANCE_M / distance
+        source = f"ASSUMED: median camera distance {ASSUMED_CAMERA_DISTANCE_M} m"
+    if not (np.isfinite(scale) and scale > 0):
+        raise DataError(f"scale must be a positive number, got {scale!r}")
+    transform = np.eye(4)
+    transform[:3, :3] = scale * rot
+    transform[:3, 3] = -scale * rot @ origin
+    notes = (
+        []
+        if "support plane" in up_source
+        else [f"no support plane in the points: up from the {up_source}"]
+    )
+    aabb = _box(capture, transform, scale * distance, len(capture.points) >= 10, cfg)
+    return Orientation(transform, float(scale), source, up_source, aabb, notes)
+
+
+def _box(
+    capture: Capture, transform: np.ndarray, distance_m: float, has_plane: bool, cfg: OrientConfig
+) -> np.ndarray:
+    cams = capture.centres @ transform[:3, :3].T + transform[:3, 3]
+    radius = float(np.median(np.linalg.norm(cams[:, :2], axis=1)))
+    margin = cfg.box_margin * distance_m
+    half = max(cfg.box_extent * radius, 0.25 * distance_m)
+    pts = capture.points @ transform[:3, :3].T + transform[:3, 3] if len(capture.points) else None
+    top = 0.5 * distance_m
+    if pts is not None:
+        inside = pts[(np.linalg.norm(pts[:, :2], axis=1) < half) & (pts[:, 2] > margin * 0.1)]
+        if len(inside) >= 10:
+            top = float(np.percentile(inside[:, 2], 99))
+    bottom = -margin if has_plane else -0.5 * distance_m
+    return np.array([[-half, -half, bottom], [half, half, top + margin]])

@@ -1,0 +1,280 @@
+"""neo import colmap|llff: synthetic captures with known geometry (tests/capture_support.py)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pycolmap
+import pytest
+
+from neoedit.cli import main
+from neoedit.data import load_scene_data
+from neoedit.data.colmap import read_colmap
+from neoedit.data.importer import ImportConfig, import_capture
+from neoedit.data.llff import read_llff
+from neoedit.data.orient import OrientConfig
+from neoedit.data.pieces import find_pieces
+from neoedit.errors import DataError
+from tests import capture_support as cs
+
+N = 12
+
+
+def _capture(root: Path, model="PINHOLE", params=None, dist=None, images=True) -> Path:  # noqa: ANN001
+    """A COLMAP project (sparse/0 text model + images) of the synthetic ring."""
+    c2w = cs.ring_c2w(N)
+    pts = cs.scene_points()
+    k = cs.pinhole_k()
+    dist = np.zeros(4) if dist is None else dist
+    cs.write_colmap_text(
+        root / "sparse" / "0",
+        cs.to_model(c2w),
+        cs.to_model(pts),
+        cs.tracks_for(c2w, pts, k, dist),
+        model,
+        params,
+    )
+    if images:
+        (root / "images").mkdir(parents=True)
+        tex = cs.floor_texture()
+        for i in range(N):
+            cv2.imwrite(str(root / "images" / f"{i:04d}.png"), cs.render_floor(c2w[i], k, tex))
+    return root
+
+
+def _centres(data_dir: Path) -> np.ndarray:
+    return load_scene_data(data_dir).cameras.camera_to_world[:, :3, 3]
+
+
+def test_colmap_import_recovers_the_metric_z_up_frame(tmp_path):
+    src = _capture(tmp_path / "cap")
+    orient = OrientConfig(camera_distance_m=cs.TRUE_DISTANCE)
+    import_capture(read_colmap(src), tmp_path / "ds", ImportConfig(orient=orient))
+    data = load_scene_data(tmp_path / "ds")
+    centres = data.cameras.camera_to_world[:, :3, 3]
+    # cameras back at their true height and radius around the origin (up to a yaw); the
+    # floor fit takes in the can's lowest points, which tilts it by well under a millimetre
+    np.testing.assert_allclose(centres[:, 2], cs.HEIGHT, atol=5e-4)
+    np.testing.assert_allclose(np.linalg.norm(centres[:, :2], axis=1), cs.RADIUS, atol=5e-4)
+    # the relative camera geometry is the true one (a rigid motion about z)
+    true = cs.ring_c2w(N)[:, :3, 3]
+    dist = lambda c: np.linalg.norm(c[:, None] - c[None], axis=-1)  # noqa: E731
+    np.testing.assert_allclose(dist(centres), dist(true), atol=1e-6)  # scale is exact
+    # orientations are rigid and the cameras still look at the target (0, 0, 0.05)
+    rot = data.cameras.camera_to_world[:, :3, :3]
+    np.testing.assert_allclose(
+        rot.transpose(0, 2, 1) @ rot, np.broadcast_to(np.eye(3), rot.shape), atol=1e-6
+    )
+    to_target = cs.TARGET - centres
+    forward = -rot[:, :, 2]
+    cos = (forward * to_target).sum(1) / np.linalg.norm(to_target, axis=1)
+    np.testing.assert_allclose(cos, 1.0, atol=1e-5)
+    assert len(data.split["test"]) == 2 and len(data.split["train"]) == N - 2
+    box = data.scene_aabb_m
+    assert box[0, 2] < 0 < 0.12 < box[1, 2] and box[1, 0] > 0.3
+
+
+def test_binary_and_text_models_import_the_same(tmp_path):
+    src = _capture(tmp_path / "cap")
+    binary = tmp_path / "bin"
+    binary.mkdir()
+    pycolmap.Reconstruction(str(src / "sparse" / "0")).write_binary(str(binary))
+    a = read_colmap(src)
+    b = read_colmap(binary, images=src / "images")
+    np.testing.assert_allclose(a.camera_to_world, b.camera_to_world, atol=1e-9)
+    np.testing.assert_allclose(a.points, b.points, atol=1e-9)
+    assert a.names == b.names and [len(t) for t in a.point_tracks] == [
+        len(t) for t in b.point_tracks
+    ]
+
+
+def test_undistortion_puts_a_point_where_the_dataset_camera_projects_it(tmp_path):
+    """A blob drawn at the *distorted* projection of a 3-D point must, after import
+    (undistortion, downscale, orientation), sit where the dataset's pinhole camera sees it."""
+    k1, k2, p1, p2 = -0.12, 0.03, 0.002, -0.001
+    src = _capture(
+        tmp_path / "cap",
+        "OPENCV",
+        [cs.F, cs.F * 1.01, 161.0, 119.0, k1, k2, p1, p2],
+        dist=np.array([k1, k2, p1, p2]),
+        images=False,
+    )
+    k = np.array([[cs.F, 0, 161.0], [0, cs.F * 1.01, 119.0], [0, 0, 1]])
+    c2w = cs.ring_c2w(N)
+    point = np.array([[0.08, -0.05, 0.02]])
+    (src / "images").mkdir()
+    yy, xx = np.mgrid[0 : cs.H, 0 : cs.W] + 0.5
+    for i in range(N):
+        u, v = cs.project(c2w[i], k, np.array([k1, k2, p1, p2]), point)[0]
+        blob = 40 + 200 * np.exp(-((xx - u) ** 2 + (yy - v) ** 2) / (2 * 3.0**2))
+        cv2.imwrite(
+            str(src / "images" / f"{i:04d}.png"), np.repeat(blob[..., None], 3, 2).astype(np.uint8)
+        )
+    out = tmp_path / "ds"
+    report = import_capture(read_colmap(src), out, ImportConfig(max_width=200))
+    data = load_scene_data(out)
+    assert data.width == 200
+    transform = np.asarray(report.orientation.transform)
+    p = point @ np.eye(3) * 1.0
+    p_model = cs.to_model(p)
+    p_new = p_model @ transform[:3, :3].T + transform[:3, 3]
+    cams = data.cameras
+    for i in range(N):
+        w2c = np.linalg.inv(cams.camera_to_world[i])
+        q = w2c[:3, :3] @ p_new[0] + w2c[:3, 3]
+        u = cams.fx[i] * q[0] / -q[2] + cams.cx[i]
+        v = -cams.fy[i] * q[1] / -q[2] + cams.cy[i]
+        img = data.images[i, :, :, 0].astype(np.float64) - 40
+        weight = np.clip(img - 0.3 * img.max(), 0, None)
+        yy2, xx2 = np.mgrid[0 : data.height, 0 : data.width] + 0.5
+        cu, cv_ = (weight * xx2).sum() / weight.sum(), (weight * yy2).sum() / weight.sum()
+        assert abs(cu - u) < 0.25 and abs(cv_ - v) < 0.25, (i, cu, u, cv_, v)
+
+
+def test_llff_reads_the_same_poses_as_colmap(tmp_path):
+    src = _capture(tmp_path / "cap")
+    colmap = read_colmap(src)
+    rows = []
+    for c2w in colmap.camera_to_world:
+        down, right, back = -c2w[:3, 1], c2w[:3, 0], c2w[:3, 2]
+        mat = np.c_[down, right, back, c2w[:3, 3], [cs.H, cs.W, cs.F]]
+        rows.append(np.r_[mat.ravel(), 0.5, 5.0])
+    np.save(src / "poses_bounds.npy", np.array(rows))
+    llff = read_llff(src)
+    np.testing.assert_allclose(llff.camera_to_world, colmap.camera_to_world, atol=1e-12)
+    np.testing.assert_allclose(llff.lenses[0].matrix(), colmap.lenses[0].matrix(), atol=1e-9)
+    assert main(["import", "llff", str(src), "--out", str(tmp_path / "ds")]) == 0
+    assert len(load_scene_data(tmp_path / "ds")) == N
+
+
+def _fold(src: Path, at: int) -> None:
+    """Rewrite the model of ``src`` folded at photo ``at``: the later photos turned 180 deg
+    about the vertical through the target, sharing no points with the earlier ones."""
+    c2w = cs.ring_c2w(N)
+    pts = cs.scene_points()
+    k = cs.pinhole_k()
+    tracks = cs.tracks_for(c2w, pts, k, np.zeros(4))
+    folded = c2w.copy()
+    turn = np.diag([-1.0, -1.0, 1.0, 1.0])
+    folded[at:] = turn @ c2w[at:]
+    tracks = [[(i, uv) for i, uv in t if i < at] or t for t in tracks]
+    tracks = [
+        t if {i < at for i, _ in t} != {True, False} else [e for e in t if e[0] < at]
+        for t in tracks
+    ]
+    cs.write_colmap_text(src / "sparse" / "0", cs.to_model(folded), cs.to_model(pts), tracks)
+
+
+def test_a_folded_model_is_found_and_refused_unless_a_piece_is_chosen(tmp_path, capsys):
+    src = _capture(tmp_path / "cap")
+    pieces, _ = find_pieces(read_colmap(src))
+    assert len(pieces) == 1  # the intact ring is one piece
+    _fold(src, 6)
+    pieces, checks = find_pieces(read_colmap(src))
+    assert [list(p) for p in pieces] == [list(range(6)), list(range(6, N))]
+    assert any(c.first == 5 and c.epipolar_px > 10 for c in checks)
+    assert main(["import", "colmap", str(src), "--out", str(tmp_path / "ds")]) == 2
+    err = " ".join(capsys.readouterr().err.split())
+    assert "inconsistent pieces" in err and "--piece largest" in err
+    assert not (tmp_path / "ds").exists()
+    assert main(["import", "colmap", str(src), "--out", str(tmp_path / "ds"), "--piece", "2"]) == 0
+    data = load_scene_data(tmp_path / "ds")
+    assert len(data) == N - 6
+    meta = json.loads((tmp_path / "ds" / "transforms.json").read_text())
+    assert meta["neoedit_import"]["imported"].startswith("piece 2 of 2")
+
+
+def test_missing_shared_points_alone_is_no_break(tmp_path):
+    """Consecutive photos without common sparse points but with right poses (e.g. a model
+    whose tracks were filtered) are checked with feature matches and kept together."""
+    src = _capture(tmp_path / "cap")
+    c2w = cs.ring_c2w(N)
+    pts = cs.scene_points()
+    tracks = cs.tracks_for(c2w, pts, cs.pinhole_k(), np.zeros(4))
+    tracks = [[e for e in t if e[0] < 6] if any(e[0] < 6 for e in t) else t for t in tracks]
+    cs.write_colmap_text(src / "sparse" / "0", cs.to_model(c2w), cs.to_model(pts), tracks)
+    pieces, checks = find_pieces(read_colmap(src))
+    assert len(pieces) == 1 and any(c.first == 5 and c.epipolar_px < 1.0 for c in checks)
+
+
+@pytest.mark.parametrize(
+    "damage, message",
+    [
+        ("no_model", "no COLMAP model found"),
+        ("fisheye", "not supported"),
+        ("missing_image", "not in"),
+        ("corrupt_binary", "cannot read the COLMAP model"),
+        ("one_image", "need at least 2"),
+    ],
+)
+def test_malformed_colmap_inputs_fail_clearly(tmp_path, capsys, damage, message):
+    src = _capture(tmp_path / "cap")
+    model = src / "sparse" / "0"
+    if damage == "no_model":
+        (model / "points3D.txt").unlink()
+    elif damage == "fisheye":
+        (model / "cameras.txt").write_text(
+            f"1 OPENCV_FISHEYE {cs.W} {cs.H} 260 260 160 120 0 0 0 0\n"
+        )
+    elif damage == "missing_image":
+        (src / "images" / "0003.png").unlink()
+    elif damage == "corrupt_binary":
+        for f in model.iterdir():
+            f.unlink()
+        for name in ("cameras", "images", "points3D"):
+            (model / f"{name}.bin").write_bytes(b"\x07" * 37)
+    elif damage == "one_image":
+        lines = (model / "images.txt").read_text().splitlines()
+        (model / "images.txt").write_text("\n".join(lines[:2]) + "\n")
+        (model / "points3D.txt").write_text("")
+    assert main(["import", "colmap", str(src), "--out", str(tmp_path / "ds")]) == 2
+    assert message in " ".join(capsys.readouterr().err.split())
+    assert not (tmp_path / "ds").exists()
+
+
+@pytest.mark.parametrize(
+    "table, message",
+    [
+        (np.zeros((3, 15)), "expected an (N, 17) array"),
+        (np.full((N, 17), np.nan), "non-finite"),
+        ("count", "poses but"),
+        ("bounds", "near/far"),
+        ("text", "not a readable .npy"),
+    ],
+)
+def test_malformed_llff_inputs_fail_clearly(tmp_path, capsys, table, message):
+    src = _capture(tmp_path / "cap")
+    good = []
+    for c2w in read_colmap(src).camera_to_world:
+        mat = np.c_[-c2w[:3, 1], c2w[:3, 0], c2w[:3, 2], c2w[:3, 3], [cs.H, cs.W, cs.F]]
+        good.append(np.r_[mat.ravel(), 0.5, 5.0])
+    good = np.array(good)
+    if isinstance(table, np.ndarray):
+        np.save(src / "poses_bounds.npy", table)
+    elif table == "count":
+        np.save(src / "poses_bounds.npy", good[:-1])
+    elif table == "bounds":
+        good[:, 15] = 6.0
+        np.save(src / "poses_bounds.npy", good)
+    else:
+        (src / "poses_bounds.npy").write_text("not numpy")
+    with pytest.raises(DataError, match=message.replace("(", r"\(").replace(")", r"\)")):
+        read_llff(src)
+    assert main(["import", "llff", str(src), "--out", str(tmp_path / "ds")]) == 2
+    assert message in " ".join(capsys.readouterr().err.split())
+
+
+def test_import_never_replaces_a_folder_it_did_not_write(tmp_path, capsys):
+    src = _capture(tmp_path / "cap")
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("keep me")
+    assert main(["import", "colmap", str(src), "--out", str(mine), "--overwrite"]) == 2
+    assert (mine / "notes.txt").read_text() == "keep me"
+    assert main(["import", "colmap", str(src), "--out", str(tmp_path / "ds")]) == 0
+    assert main(["import", "colmap", str(src), "--out", str(tmp_path / "ds")]) == 2
+    assert main(["import", "colmap", str(src), "--out", str(tmp_path / "ds"), "--overwrite"]) == 0
+    assert main(["import", "colmap", str(src), "--out", str(src / "images")]) == 2
