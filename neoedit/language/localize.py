@@ -76,6 +76,38 @@ class QueryResult:
         return {**self.box.to_dict(), "score": round(self.score, 4), "prompt": self.prompt}
 
 
+def dominant_plane(
+    points_m: np.ndarray, inlier_m: float = 0.005, iterations: int = 256, seed: int = 0
+) -> tuple[np.ndarray, np.ndarray, float] | None:
+    """RANSAC plane of the most points (at most 20000 drawn): (unit normal (3,), a point on
+    it (3,), inlier fraction), or None for fewer than 50 points or only degenerate triples.
+    The normal's sign is arbitrary."""
+    if len(points_m) < 50:
+        return None
+    rng = np.random.default_rng(seed)
+    pts = points_m[rng.choice(len(points_m), min(len(points_m), 20000), replace=False)]
+    best_n, best_a, best_count = None, None, 0
+    for _ in range(iterations):
+        a, b, c = pts[rng.choice(len(pts), 3, replace=False)]
+        n = np.cross(b - a, c - a)
+        norm = np.linalg.norm(n)
+        if norm < 1e-9:
+            continue
+        n = n / norm
+        count = int((np.abs((pts - a) @ n) < inlier_m).sum())
+        if count > best_count:
+            best_n, best_a, best_count = n, a, count
+    if best_n is None or best_a is None:
+        return None
+    return best_n, best_a, best_count / len(pts)
+
+
+def camera_up(cameras: Cameras) -> np.ndarray:
+    """Unit mean of the cameras' up axes (OpenGL +y)."""
+    cam_up = cameras.camera_to_world[:, :3, 1].mean(0)
+    return cam_up / max(np.linalg.norm(cam_up), 1e-9)
+
+
 def estimate_up(
     cameras: Cameras,
     points_m: np.ndarray | None = None,
@@ -86,26 +118,12 @@ def estimate_up(
 ) -> np.ndarray:
     """Unit up vector (3,): normal of the dominant plane of ``points_m`` (RANSAC) oriented
     like the mean camera up axis (OpenGL +y); that mean alone without a dominant plane."""
-    cam_up = cameras.camera_to_world[:, :3, 1].mean(0)
-    cam_up = cam_up / max(np.linalg.norm(cam_up), 1e-9)
-    if points_m is None or len(points_m) < 50:
+    cam_up = camera_up(cameras)
+    plane = None if points_m is None else dominant_plane(points_m, inlier_m, iterations, seed)
+    if plane is None or plane[2] < min_inlier_fraction:
         return cam_up
-    rng = np.random.default_rng(seed)
-    pts = points_m[rng.choice(len(points_m), min(len(points_m), 20000), replace=False)]
-    best_n, best_count = None, 0
-    for _ in range(iterations):
-        a, b, c = pts[rng.choice(len(pts), 3, replace=False)]
-        n = np.cross(b - a, c - a)
-        norm = np.linalg.norm(n)
-        if norm < 1e-9:
-            continue
-        n = n / norm
-        count = int((np.abs((pts - a) @ n) < inlier_m).sum())
-        if count > best_count:
-            best_n, best_count = n, count
-    if best_n is None or best_count < min_inlier_fraction * len(pts):
-        return cam_up
-    return best_n if best_n @ cam_up >= 0 else -best_n
+    n = plane[0]
+    return n if n @ cam_up >= 0 else -n
 
 
 def check_up(up: np.ndarray, max_angle_deg: float = 30.0) -> None:

@@ -1,8 +1,11 @@
 """2-D teachers: per-pixel feature targets for the language field.
 
 A teacher is prepared once on the training frames of a dataset and then answers
-``targets(frame, v, u) -> (features (N,D), valid (N,))`` for batches of pixels (frame is the
-position in the prepared frame list, (v, u) full-resolution pixel rows / columns).
+``targets_at(points, frame, v, u) -> (features (N,D), valid (N,))`` for the surface points
+(N,3) the training rendered and the pixels they were seen at (frame is the position in the
+prepared frame list, (v, u) full-resolution pixel rows / columns). Image teachers only look
+at the pixel (their ``targets(frame, v, u)``; :class:`PixelTeacher` supplies ``targets_at``);
+the geometric teacher (:mod:`neoedit.language.geometric`) looks at the points.
 
 * :class:`LabelTeacher` (embedded default): instance masks + names -> the text embedding of
   the name at every pixel. Pixels on a label boundary are left out (their depth may belong
@@ -34,12 +37,26 @@ class Teacher(Protocol):
 
     def prepare(self, data: SceneData, frames: np.ndarray) -> None: ...
 
-    def targets(
-        self, frame: torch.Tensor, v_px: torch.Tensor, u_px: torch.Tensor
+    def targets_at(
+        self, points: torch.Tensor, frame: torch.Tensor, v_px: torch.Tensor, u_px: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor]: ...
 
 
-class LabelTeacher:
+class PixelTeacher:
+    """Base of the teachers whose target depends on the pixel only."""
+
+    def targets(
+        self, frame: torch.Tensor, v_px: torch.Tensor, u_px: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        raise NotImplementedError
+
+    def targets_at(
+        self, points: torch.Tensor, frame: torch.Tensor, v_px: torch.Tensor, u_px: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        return self.targets(frame, v_px, u_px)
+
+
+class LabelTeacher(PixelTeacher):
     name = "labels"
 
     def __init__(self, text: TextEncoder):
@@ -76,7 +93,7 @@ class LabelTeacher:
         return self.table[rows.clamp_min(0)], valid
 
 
-class _FeatureMapTeacher:
+class _FeatureMapTeacher(PixelTeacher):
     """Shared part of the image-model teachers: (F, h, w, D) float16 maps, nearest lookup."""
 
     maps: torch.Tensor

