@@ -27,10 +27,12 @@ MODEL[:3, :3] = MODEL_SCALE * Rotation.from_euler("xyz", [25, -40, 70], degrees=
 MODEL[:3, 3] = [1.5, -2.0, 0.7]
 
 
-def ring_c2w(n: int, arc_deg: float = 360.0) -> np.ndarray:
+def ring_c2w(
+    n: int, arc_deg: float = 360.0, radius: float = RADIUS, height: float = HEIGHT
+) -> np.ndarray:
     """(n,4,4) OpenGL camera-to-world of the ring, in world metres."""
     angles = np.radians(np.arange(n) * arc_deg / n)
-    eyes = np.stack([RADIUS * np.cos(angles), RADIUS * np.sin(angles), np.full(n, HEIGHT)], 1)
+    eyes = np.stack([radius * np.cos(angles), radius * np.sin(angles), np.full(n, height)], 1)
     return np.stack([look_at(e, TARGET) for e in eyes])
 
 
@@ -43,13 +45,13 @@ def scene_points(seed: int = 0) -> np.ndarray:
     return np.concatenate([floor, can])
 
 
-def to_model(points_or_c2w: np.ndarray) -> np.ndarray:
+def to_model(points_or_c2w: np.ndarray, model: np.ndarray = MODEL) -> np.ndarray:
     """World -> model frame (points (P,3) or OpenGL camera-to-world (N,4,4), kept rigid)."""
     a = np.asarray(points_or_c2w, dtype=np.float64)
     if a.ndim == 2:
-        return a @ MODEL[:3, :3].T + MODEL[:3, 3]
-    out = MODEL[None] @ a
-    out[:, :3, :3] /= MODEL_SCALE
+        return a @ model[:3, :3].T + model[:3, 3]
+    out = model[None] @ a
+    out[:, :3, :3] /= np.cbrt(np.linalg.det(model[:3, :3]))
     return out
 
 
@@ -123,17 +125,49 @@ def floor_texture(seed: int = 0, size: int = 1024) -> np.ndarray:
     return (tex * 255).astype(np.uint8)
 
 
-def render_floor(c2w_world: np.ndarray, k: np.ndarray, texture: np.ndarray) -> np.ndarray:
-    """The textured floor as a pinhole camera sees it (H, W, 3) uint8."""
+def render_floor(
+    c2w_world: np.ndarray, k: np.ndarray, texture: np.ndarray, supersample: int = 1
+) -> np.ndarray:
+    """The textured floor as a pinhole camera sees it (H, W, 3) uint8; ``supersample``
+    renders at that many times the size and averages (a camera integrates over pixels)."""
     size = texture.shape[0]
-    tex_from_plane = np.array([[size / 2, 0, size / 2], [0, size / 2, size / 2], [0, 0, 1.0]])
+    # texel u grows with +x and v with -y, so a camera above the floor sees the texture
+    # unmirrored (the markers in it stay readable)
+    tex_from_plane = np.array([[size / 2, 0, size / 2], [0, -size / 2, size / 2], [0, 0, 1.0]])
     w2c = _w2c_cv(c2w_world)
     k_cv = k.copy()
+    k_cv[:2] *= supersample
     k_cv[:2, 2] -= 0.5
     img_from_plane = k_cv @ np.c_[w2c[:3, 0], w2c[:3, 1], w2c[:3, 3]]
-    warp = img_from_plane @ np.linalg.inv(tex_from_plane)
-    grey = cv2.warpPerspective(texture, warp, (W, H), flags=cv2.INTER_LINEAR, borderValue=90)
+    # texture pixel centres sit at integers in OpenCV: texel (i, j) covers plane cell i..i+1
+    texel = np.array([[1, 0, -0.5], [0, 1, -0.5], [0, 0, 1.0]])
+    warp = img_from_plane @ np.linalg.inv(texel @ tex_from_plane)
+    big = (W * supersample, H * supersample)
+    grey = cv2.warpPerspective(texture, warp, big, flags=cv2.INTER_LINEAR, borderValue=90)
+    if supersample > 1:
+        grey = cv2.resize(grey, (W, H), interpolation=cv2.INTER_AREA)
     return np.repeat(grey[:, :, None], 3, axis=2)
+
+
+def marker_texture(
+    side_m: float, centres: list[tuple[float, float]], size: int = 4096
+) -> np.ndarray:
+    """The floor texture with ArUco markers (4X4_50, ids 0, 1, ...) of ``side_m`` at
+    ``centres`` (plane metres), each in a white quiet zone; texel u = +x, v = -y, so corner
+    0 -> 1 of every marker points along +x."""
+    tex = cv2.resize(floor_texture(), (size, size), interpolation=cv2.INTER_LINEAR)
+    tex = (tex // 2 + 64).astype(np.uint8)  # keep the markers the darkest and brightest
+    dictionary = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50)
+    px = size / 2  # texels per metre / 1
+    side = int(round(side_m * px))
+    for marker, (x, y) in enumerate(centres):
+        u0, v0 = int(round((x + 1) * px - side / 2)), int(round((1 - y) * px - side / 2))
+        pad = side // 4
+        tex[v0 - pad : v0 + side + pad, u0 - pad : u0 + side + pad] = 255
+        tex[v0 : v0 + side, u0 : u0 + side] = cv2.aruco.generateImageMarker(
+            dictionary, marker, side
+        )
+    return tex
 
 
 def pinhole_k() -> np.ndarray:

@@ -278,3 +278,116 @@ def test_import_never_replaces_a_folder_it_did_not_write(tmp_path, capsys):
     assert main(["import", "colmap", str(src), "--out", str(tmp_path / "ds")]) == 2
     assert main(["import", "colmap", str(src), "--out", str(tmp_path / "ds"), "--overwrite"]) == 0
     assert main(["import", "colmap", str(src), "--out", str(src / "images")]) == 2
+
+
+def _arc_photos(folder: Path, n: int = 20) -> np.ndarray:
+    """``n`` photos of the textured floor over a 90 degree arc; their true camera-to-world."""
+    folder.mkdir(parents=True)
+    c2w = cs.ring_c2w(n, arc_deg=90)
+    tex = cs.floor_texture()
+    for i in range(n):
+        cv2.imwrite(str(folder / f"{i:04d}.jpg"), cs.render_floor(c2w[i], cs.pinhole_k(), tex))
+    return c2w
+
+
+def test_process_recovers_the_cameras_from_the_photos_alone(tmp_path, capsys):
+    """Structure-from-motion (pycolmap, CPU) on rendered photos: the imported cameras stand
+    at their true height and distance, with the true focal length."""
+    _arc_photos(tmp_path / "photos")
+    out = tmp_path / "ds"
+    args = ["process", str(tmp_path / "photos"), "--out", str(out)]
+    assert main([*args, "--orient.camera-distance-m", str(cs.TRUE_DISTANCE)]) == 0
+    assert "20 of 20 photos registered" in " ".join(capsys.readouterr().out.split())
+    data = load_scene_data(out)
+    centres = data.cameras.camera_to_world[:, :3, 3]
+    np.testing.assert_allclose(centres[:, 2], cs.HEIGHT, atol=0.005)
+    np.testing.assert_allclose(np.linalg.norm(centres[:, :2], axis=1), cs.RADIUS, atol=0.005)
+    np.testing.assert_allclose(data.cameras.fx, cs.F, rtol=0.01)
+    assert (out / "colmap" / "sparse" / "0" / "images.bin").is_file()
+    assert not [p for p in tmp_path.iterdir() if ".sfm-" in p.name]  # work folder removed
+
+
+def test_process_says_clearly_when_too_few_photos_register(tmp_path, capsys):
+    src = _capture(tmp_path / "cap")  # 12 photos 30 degrees apart: too little overlap
+    assert main(["process", str(src / "images"), "--out", str(tmp_path / "ds")]) == 2
+    assert "registered only" in " ".join(capsys.readouterr().err.split())
+    assert not (tmp_path / "ds").exists()
+    assert main(["process", str(tmp_path / "nothing"), "--out", str(tmp_path / "ds")]) == 2
+
+
+MARKERS = [(-0.1, -0.1), (0.1, -0.1), (0.1, 0.1), (-0.1, 0.1)]
+MARKER_SIDE = 0.08
+
+
+def _marker_capture(root: Path, c2w: np.ndarray, model: np.ndarray) -> Path:
+    """A COLMAP project of a floor with four ArUco markers, photographed from ``c2w``."""
+    pts = cs.scene_points()
+    k = cs.pinhole_k()
+    tracks = cs.tracks_for(c2w, pts, k, np.zeros(4))
+    cs.write_colmap_text(
+        root / "sparse" / "0", cs.to_model(c2w, model), cs.to_model(pts, model), tracks
+    )
+    (root / "images").mkdir(parents=True)
+    tex = cs.marker_texture(MARKER_SIDE, MARKERS)
+    for i, pose in enumerate(c2w):
+        image = cs.render_floor(pose, k, tex, supersample=4)
+        cv2.imwrite(str(root / "images" / f"{i:04d}.png"), image)
+    return root
+
+
+def _pose_errors(got: np.ndarray, true: np.ndarray) -> tuple[float, float]:
+    """Largest camera-centre distance [m] and rotation difference [deg]."""
+    dist = np.linalg.norm(got[:, :3, 3] - true[:, :3, 3], axis=1).max()
+    rel = got[:, :3, :3].transpose(0, 2, 1) @ true[:, :3, :3]
+    cos = np.clip((np.trace(rel, axis1=1, axis2=2) - 1) / 2, -1, 1)
+    return float(dist), float(np.degrees(np.arccos(cos)).max())
+
+
+def test_aruco_markers_give_the_metric_table_frame(tmp_path):
+    """The markers' frame (origin at their centre, z up, x along marker 0's first edge) is
+    the world frame here: the imported cameras must be the true ones."""
+    true = cs.ring_c2w(12, radius=0.35, height=0.45)
+    src = _marker_capture(tmp_path / "cap", true, cs.MODEL)
+    orient = OrientConfig(aruco_size_m=MARKER_SIDE)
+    report = import_capture(read_colmap(src), tmp_path / "ds", ImportConfig(orient=orient))
+    got = load_scene_data(tmp_path / "ds").cameras.camera_to_world
+    dist, angle = _pose_errors(got, true)
+    assert dist < 0.005 and angle < 0.5, (dist, angle)
+    scale_error = report.orientation.scale * cs.MODEL_SCALE - 1.0
+    assert abs(scale_error) < 0.005, scale_error
+
+
+def test_register_moves_a_later_scan_into_the_earlier_frame(tmp_path, capsys):
+    pre_true = cs.ring_c2w(12, radius=0.35, height=0.45)
+    post_true = cs.ring_c2w(10, arc_deg=300, radius=0.4, height=0.4)
+    other = np.eye(4)
+    other[:3, :3] = 0.4 * cs.Rotation.from_euler("zyx", [120, 30, -10], degrees=True).as_matrix()
+    other[:3, 3] = [-3.0, 1.0, 2.0]
+    pre = _marker_capture(tmp_path / "pre_cap", pre_true, cs.MODEL)
+    post = _marker_capture(tmp_path / "post_cap", post_true, other)
+    aruco = ["--orient.aruco-size-m", str(MARKER_SIDE)]
+    assert main(["import", "colmap", str(pre), "--out", str(tmp_path / "pre"), *aruco]) == 0
+    assert main(["import", "colmap", str(post), "--out", str(tmp_path / "post")]) == 0
+    args = ["register", str(tmp_path / "pre"), str(tmp_path / "post"), "--out"]
+    assert main([*args, str(tmp_path / "reg")]) == 0
+    assert "corner residual" in capsys.readouterr().out
+    got = load_scene_data(tmp_path / "reg").cameras.camera_to_world
+    dist, angle = _pose_errors(got, post_true)
+    assert dist < 0.005 and angle < 0.5, (dist, angle)
+    # a scan without markers cannot be registered: one clear error, nothing written
+    plain = _capture(tmp_path / "plain_cap")
+    assert main(["import", "colmap", str(plain), "--out", str(tmp_path / "plain")]) == 0
+    assert (
+        main(
+            [
+                "register",
+                str(tmp_path / "pre"),
+                str(tmp_path / "plain"),
+                "--out",
+                str(tmp_path / "reg2"),
+            ]
+        )
+        == 2
+    )
+    assert "2 or more ArUco markers" in " ".join(capsys.readouterr().err.split())
+    assert not (tmp_path / "reg2").exists()

@@ -14,7 +14,7 @@ from neoedit.cli.edit import MoveCommand, RemoveCommand
 from neoedit.cli.field import EvalCommand, RenderCommand, TrainCommand
 from neoedit.cli.grasp import GraspCommand
 from neoedit.cli.history import DiffCommand, LogCommand, RestoreCommand
-from neoedit.cli.importer import ImportCommands, ProcessCommand
+from neoedit.cli.importer import ImportCommands, ProcessCommand, RegisterCommand
 from neoedit.cli.language import QueryCommand
 from neoedit.cli.plan import PlanCommand
 from neoedit.cli.sim import SimBenchmarkCommand, SimExecuteCommand, SimSceneCommand
@@ -38,6 +38,7 @@ Commands = Union[  # noqa: UP007
     SimCommands,
     ImportCommands,
     Annotated[ProcessCommand, tyro.conf.subcommand("process")],
+    Annotated[RegisterCommand, tyro.conf.subcommand("register")],
     Annotated[InfoCommand, tyro.conf.subcommand("info")],
     Annotated[TrainCommand, tyro.conf.subcommand("train")],
     Annotated[RenderCommand, tyro.conf.subcommand("render")],

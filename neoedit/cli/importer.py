@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Union
 
+import numpy as np
 import tyro
 from rich.console import Console
 
@@ -169,6 +170,11 @@ class ProcessCommand:
                 video_frames(src, images, self.sfm.video_frames)
             result = run_sfm(images, work, self.sfm)
             seconds = time.perf_counter() - t0
+            Console().print(
+                f"structure-from-motion: {result.registered} of {result.total} photos "
+                f"registered ({result.models} model{'s' if result.models > 1 else ''}) in "
+                f"{seconds:.0f} s"
+            )
             capture = read_colmap(result.model, images)
             cfg = ImportConfig(self.max_width, self.piece, self.holdout_every, self.orient)
 
@@ -178,8 +184,34 @@ class ProcessCommand:
             report = import_capture(capture, self.out, cfg, self.overwrite, extras=keep_model)
         finally:
             shutil.rmtree(work, ignore_errors=True)
-        Console().print(
-            f"structure-from-motion: {result.registered} of {result.total} photos registered "
-            f"({result.models} model{'s' if result.models > 1 else ''}) in {seconds:.0f} s"
-        )
         print_report(report)
+
+
+@dataclass
+class RegisterCommand:
+    """Move a later scan (POST) into an earlier scan's (PRE) frame with the ArUco markers
+    both see; writes a copy of POST with the new camera poses."""
+
+    pre: tyro.conf.Positional[Path]
+    """The reference dataset."""
+    post: tyro.conf.Positional[Path]
+    """The dataset to align (e.g. the scan after a manipulation)."""
+    out: Path
+    """New dataset folder: POST in PRE's frame."""
+    aruco_dict: str = "4X4_50"
+    overwrite: bool = False
+
+    def run(self) -> None:
+        from neoedit.data.register import register_scans, write_registered
+
+        check_writable_output(
+            self.out, [self.pre, self.post], kind="dataset", overwrite=self.overwrite
+        )
+        reg = register_scans(self.pre, self.post, self.aruco_dict)
+        write_registered(self.pre, self.post, reg, self.out, self.overwrite)
+        t = reg.transform[:3, 3]
+        Console().print(
+            f"[bold]{self.out}[/]: {self.post} in the frame of {self.pre} (markers {reg.markers}); "
+            f"scale x{reg.scale:.5f}, rotation {reg.rotation_deg:.2f} deg, translation "
+            f"{np.round(t, 4).tolist()}; corner residual {1000 * reg.rms_m:.2f} mm"
+        )

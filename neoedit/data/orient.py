@@ -35,6 +35,12 @@ class OrientConfig:
     camera_distance_m: float | None = None
     """Known median distance of the cameras to the object they look at, in metres. Without
     it (and without ``scale``) 0.5 m is assumed: the scale is then only roughly metric."""
+    aruco_size_m: float | None = None
+    """Side length of the ArUco markers lying on the table, in metres: scale, up, origin
+    and x axis then come from the markers (the paper's registration; see
+    :mod:`neoedit.data.markers`), and every scan of the same table gets the same frame."""
+    aruco_dict: str = "4X4_50"
+    """OpenCV ArUco dictionary of the markers."""
     plane_inlier_fraction: float = 0.01
     """Plane inlier distance as a fraction of the median camera distance."""
     min_plane_share: float = 0.15
@@ -139,6 +145,8 @@ def orient(capture: Capture, cfg: OrientConfig | None = None) -> Orientation:
     distance = float(np.median(np.linalg.norm(capture.centres - centre, axis=1)))
     if not np.isfinite(distance) or distance <= 0:
         raise DataError(f"{capture.source}: the cameras have no common point to look at")
+    if cfg.aruco_size_m is not None:
+        return _marker_orientation(capture, distance, cfg)
     up, floor, up_source = _support(capture, centre, distance, cfg)
     origin = centre - (centre @ up - floor) * up
     rot = _frame(up, capture.camera_to_world[:, :3, 0].mean(0))
@@ -164,6 +172,17 @@ def orient(capture: Capture, cfg: OrientConfig | None = None) -> Orientation:
     )
     aabb = _box(capture, transform, scale * distance, len(capture.points) >= 10, cfg)
     return Orientation(transform, float(scale), source, up_source, aabb, notes)
+
+
+def _marker_orientation(capture: Capture, distance: float, cfg: OrientConfig) -> Orientation:
+    from neoedit.data.markers import capture_markers, marker_frame
+
+    markers = capture_markers(capture, cfg.aruco_dict)
+    transform, scale = marker_frame(markers, float(cfg.aruco_size_m or 0.0), capture.centres)
+    notes = [f"ArUco markers {sorted(markers.corners)} ({cfg.aruco_dict}, {cfg.aruco_size_m} m)"]
+    aabb = _box(capture, transform, scale * distance, len(capture.points) >= 10, cfg)
+    source = f"ArUco markers, side {cfg.aruco_size_m} m"
+    return Orientation(transform, scale, source, "ArUco marker plane", aabb, notes)
 
 
 def _box(

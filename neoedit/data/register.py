@@ -1,0 +1,89 @@
+"""Register a later scan (POST) to an earlier one (PRE) with the ArUco markers both see:
+the post scan's cameras are moved into the pre scan's frame (``neo register``)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from neoedit.data.load import load_scene_data
+from neoedit.data.markers import dataset_markers, umeyama
+from neoedit.errors import DataError
+from neoedit.utils.io import atomic_directory, atomic_write_json
+
+
+@dataclass
+class Registration:
+    transform: np.ndarray
+    """(4,4) similarity: POST frame -> PRE frame."""
+    markers: list[int]
+    rms_m: float
+    """Residual of the matched marker corners after the alignment, in PRE units."""
+
+    @property
+    def scale(self) -> float:
+        return float(np.cbrt(np.linalg.det(self.transform[:3, :3])))
+
+    @property
+    def rotation_deg(self) -> float:
+        rot = self.transform[:3, :3] / self.scale
+        return float(np.degrees(Rotation.from_matrix(rot).magnitude()))
+
+
+def register_scans(pre: Path, post: Path, dictionary_name: str = "4X4_50") -> Registration:
+    """The similarity that takes POST's marker corners onto PRE's."""
+    a = dataset_markers(load_scene_data(pre), dictionary_name)
+    b = dataset_markers(load_scene_data(post), dictionary_name)
+    common = sorted(set(a.corners) & set(b.corners))
+    if len(common) < 2:
+        raise DataError(
+            f"registration needs 2 or more ArUco markers seen in both scans; {pre} has "
+            f"{sorted(a.corners)}, {post} has {sorted(b.corners)} ({dictionary_name})"
+        )
+    src, dst = b.points(common), a.points(common)
+    transform = umeyama(src, dst)
+    moved = src @ transform[:3, :3].T + transform[:3, 3]
+    rms = float(np.sqrt(((moved - dst) ** 2).sum(1).mean()))
+    return Registration(transform, common, rms)
+
+
+def write_registered(pre: Path, post: Path, reg: Registration, out: Path, overwrite: bool) -> None:
+    """A copy of the POST dataset whose cameras are in PRE's frame (with PRE's scene box)."""
+    post_tf = Path(post) / "transforms.json" if Path(post).is_dir() else Path(post)
+    pre_tf = Path(pre) / "transforms.json" if Path(pre).is_dir() else Path(pre)
+    meta = json.loads(post_tf.read_text())
+    pre_meta = json.loads(pre_tf.read_text())
+    for frame in meta["frames"]:
+        c2w = reg.transform @ np.asarray(frame["transform_matrix"], dtype=np.float64)
+        c2w[:3, :3] /= reg.scale
+        frame["transform_matrix"] = np.round(c2w, 9).tolist()
+    if "scene_aabb" in pre_meta:
+        meta["scene_aabb"] = pre_meta["scene_aabb"]
+    meta["neoedit_registration"] = {
+        "pre": str(pre_tf.parent.resolve()),
+        "post": str(post_tf.parent.resolve()),
+        "markers": reg.markers,
+        "transform": np.round(reg.transform, 9).tolist(),
+        "rms_m": reg.rms_m,
+    }
+    with atomic_directory(out, overwrite=overwrite, kind="dataset") as tmp:
+        names = {
+            f[k]
+            for f in meta["frames"]
+            for k in ("file_path", "depth_file_path", "mask_path", "instance_path")
+            if k in f
+        }
+        for name in sorted(names):
+            source = post_tf.parent / name
+            if not source.is_file():
+                raise DataError(f"{post_tf}: {name} not found")
+            (tmp / name).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(source, tmp / name)
+        if (post_tf.parent / "objects.json").is_file():
+            shutil.copy2(post_tf.parent / "objects.json", tmp / "objects.json")
+        atomic_write_json(tmp / "transforms.json", meta)
