@@ -60,7 +60,7 @@ class LanguageMeta:
     field: LanguageFieldConfig
     text: TextEncoderSpec
     teacher: str
-    """'labels' or 'clip' (+ '+dino' when a DINO head was trained)."""
+    """'labels', 'clip' or 'geometric' (+ '+dino' when a DINO head was trained)."""
     vocabulary: list[str] = dataclasses.field(default_factory=list)
     """Names the label teacher embedded (empty for image teachers)."""
     steps: int = 0

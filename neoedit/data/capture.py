@@ -46,10 +46,9 @@ class Lens:
     def distortion(self) -> np.ndarray:
         """OpenCV distortion coefficients (k1, k2, p1, p2[, k3, k4, k5, k6])."""
         p = self.named()
+        keys: tuple[str, ...] = ("k1", "k2", "p1", "p2")
         if self.model == "FULL_OPENCV":
-            keys = ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6")
-        else:
-            keys = ("k1", "k2", "p1", "p2")
+            keys += ("k3", "k4", "k5", "k6")
         return np.array([p.get(k, 0.0) for k in keys])
 
     @property

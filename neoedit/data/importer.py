@@ -146,7 +146,9 @@ def import_capture(
     width = next(iter(sizes))[0]
     scale = min(1.0, cfg.max_width / width) if cfg.max_width else 1.0
     maps: dict = {}
-    frames, train, test = [], [], []
+    frames: list[dict] = []
+    train: list[str] = []
+    test: list[str] = []
     with atomic_directory(out, overwrite=overwrite, kind="dataset") as tmp:
         (tmp / "images").mkdir()
         for j in track(range(len(part)), "undistorting photos"):

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from neoedit.data.capture import Capture
+from neoedit.errors import DataError
 
 
 @dataclass
@@ -57,6 +58,8 @@ def _read_gray(capture: Capture, i: int, width: int):  # noqa: ANN202 (cv2 array
     import cv2
 
     image = cv2.imread(str(capture.image_dir / capture.names[i]), cv2.IMREAD_GRAYSCALE)
+    if image is None:
+        raise DataError(f"cannot read image {capture.image_dir / capture.names[i]}")
     scale = min(1.0, width / image.shape[1])
     if scale < 1.0:
         image = cv2.resize(image, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
@@ -89,7 +92,7 @@ def check_pair(capture: Capture, i: int, shared: int, cfg: PieceCheckConfig) -> 
 
     j = i + 1
     (img_i, s_i), (img_j, s_j) = (_read_gray(capture, k, cfg.match_width_px) for k in (i, j))
-    sift = cv2.SIFT_create(nfeatures=3000)
+    sift = cv2.SIFT_create(nfeatures=3000)  # type: ignore[attr-defined]
     kp_i, des_i = sift.detectAndCompute(img_i, None)
     kp_j, des_j = sift.detectAndCompute(img_j, None)
     if des_i is None or des_j is None or len(kp_i) < 8 or len(kp_j) < 8:
@@ -98,8 +101,8 @@ def check_pair(capture: Capture, i: int, shared: int, cfg: PieceCheckConfig) -> 
     good = [m[0] for m in pairs if len(m) == 2 and m[0].distance < 0.75 * m[1].distance]
     if len(good) < cfg.min_matches:
         return PairCheck(i, shared, len(good), None)
-    uv_i = np.float64([kp_i[m.queryIdx].pt for m in good]) / s_i
-    uv_j = np.float64([kp_j[m.trainIdx].pt for m in good]) / s_j
+    uv_i = np.array([kp_i[m.queryIdx].pt for m in good], dtype=np.float64) / s_i
+    uv_j = np.array([kp_j[m.trainIdx].pt for m in good], dtype=np.float64) / s_j
     _, inlier = cv2.findFundamentalMat(uv_i, uv_j, cv2.FM_RANSAC, 1.0 / s_i, 0.999)
     if inlier is None or int(inlier.sum()) < cfg.min_matches:
         return PairCheck(i, shared, 0 if inlier is None else int(inlier.sum()), None)

@@ -235,8 +235,8 @@ def query_scene(
     """Localise ``prompt`` in a scene with a trained language field."""
     if scene.language is None or scene.surface_points_m is None:
         raise NeoError(
-            "this scene has no language field: train it with language (neo train ... on data "
-            "with instance masks + names, or --language.clip-path)"
+            "this scene has no language field: train it with one (neo train without "
+            "--skip-language; --resume with no more steps adds it to a trained scene)"
         )
     up = np.asarray(scene.meta.language.up if scene.meta.language else [0, 0, 1], dtype=float)
     check_up(up)

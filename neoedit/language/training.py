@@ -15,12 +15,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import torch
+from rich.console import Console
 
 from neoedit.cameras.rays import CameraTensors
 from neoedit.data import SceneData
 from neoedit.errors import NeoError
 from neoedit.fields.language import LanguageField, LanguageFieldConfig
-from neoedit.language.geometric import GeometricConfig, GeometricTeacher
+from neoedit.language.geometric import GeometricConfig, GeometricTeacher, NoSupportPlane
 from neoedit.language.localize import estimate_up
 from neoedit.language.teachers import CLIPTeacher, DinoTeacher, LabelTeacher, Teacher
 from neoedit.language.text import TextEncoderSpec, load_text_encoder
@@ -61,9 +62,9 @@ class LanguageTrainConfig:
 TEACHERS = ("auto", "labels", "clip", "geometric")
 
 
-def resolve_teacher(cfg: LanguageTrainConfig, data: SceneData) -> str | None:
-    """Which teacher to use (every dataset has one now: 'geometric' needs nothing but the
-    geometry; None is kept in the signature for callers that check)."""
+def resolve_teacher(cfg: LanguageTrainConfig, data: SceneData) -> str:
+    """Which teacher to use: the labels where the data has them, else CLIP where a checkpoint
+    is given, else the geometric teacher (which needs nothing but the trained geometry)."""
     has_labels = data.instance_ids is not None and bool(data.instance_names)
     if cfg.teacher == "auto":
         if has_labels:
@@ -82,7 +83,7 @@ def resolve_teacher(cfg: LanguageTrainConfig, data: SceneData) -> str | None:
 
 def _build_teachers(
     cfg: LanguageTrainConfig, kind: str
-) -> tuple[Teacher, TextEncoderSpec, Teacher | None]:
+) -> tuple[Teacher, TextEncoderSpec, DinoTeacher | None]:
     if kind in ("labels", "geometric"):
         spec = (
             TextEncoderSpec("clip", cfg.clip_path)
@@ -169,7 +170,8 @@ def fit_language(
 
 
 def train_language(scene: Scene, data: SceneData, cfg: LanguageTrainConfig) -> Scene:
-    """Train (or retrain) the language field of ``scene`` in place; returns the scene."""
+    """Train (or retrain) the language field of ``scene`` in place; returns the scene (left
+    as it was when the teacher is 'auto', the data has no labels and no support plane)."""
     kind = resolve_teacher(cfg, data)
     if kind is None:
         raise NeoError(f"{data.root}: no language teacher for this data")
@@ -189,7 +191,14 @@ def train_language(scene: Scene, data: SceneData, cfg: LanguageTrainConfig) -> S
     if int(hit.sum()) < 100:
         raise NeoError("the radiance field renders (almost) nothing opaque: train it first")
     pos, v, u, points = pos[hit], v[hit], u[hit], points[hit]
-    targets, valid = teacher.targets_at(points, pos, v, u)
+    try:
+        targets, valid = teacher.targets_at(points, pos, v, u)
+    except NoSupportPlane as e:
+        if cfg.teacher != "auto":
+            raise
+        # chosen for want of labels: a scene without a support plane just gets no language
+        Console(stderr=True).print(f"[yellow]{e}: the scene has no language field[/]")
+        return scene
     dino_targets = dino.targets(pos, v, u)[0] if dino is not None else None
     field_cfg = LanguageFieldConfig(dim=teacher.dim, dino_dim=dino.dim if dino is not None else 0)
     lang = LanguageField(field_cfg, scene.field.aabb.cpu(), seed=cfg.seed).to(device)

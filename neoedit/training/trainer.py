@@ -11,7 +11,6 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from rich.console import Console
 
 from neoedit.cameras.cameras import orbit_center
 from neoedit.cameras.rays import CameraTensors
@@ -20,7 +19,7 @@ from neoedit.data.scan import scan_record
 from neoedit.errors import NeoError
 from neoedit.fields.patched import PatchedField
 from neoedit.fields.radiance import RadianceField, RadianceFieldConfig
-from neoedit.language.training import LanguageTrainConfig, resolve_teacher, train_language
+from neoedit.language.training import LanguageTrainConfig, train_language
 from neoedit.rendering.occupancy import OccupancyGridConfig, refresh_grid
 from neoedit.rendering.renderer import RenderConfig, render_image, render_rays
 from neoedit.rendering.volume import distortion_loss, opacity_penalty
@@ -173,11 +172,12 @@ class Trainer:
         img, v, u, target = self.batch()
         rays = self.cams.rays(self.train_idx[img], v, u)
         background = self.scene.background
-        if self.alpha is not None:
+        if self.alpha is not None and isinstance(background, torch.Tensor):
             # the data was composited over the scene background: swap it for a random colour
             transparency = 1.0 - self.alpha[img, v, u].float()[:, None] / 255.0
-            background = torch.rand(target.shape, device=self.device, generator=self.generator)
-            target = target + transparency * (background - self.scene.background)
+            random_bg = torch.rand(target.shape, device=self.device, generator=self.generator)
+            target = target + transparency * (random_bg - background)
+            background = random_bg
         use_grid = grid if step >= meta.grid.warmup_steps else None
         out = render_rays(
             field, use_grid, rays, meta.render, background, jitter=True, generator=self.generator
@@ -304,8 +304,8 @@ def train(
 ) -> Scene:
     """Train a scene on a dataset and write it to ``out`` (resume continues a saved run).
 
-    Then, when ``language`` is enabled and the data has a teacher (instance masks + names, or
-    a CLIP checkpoint), the language field is trained on the frozen geometry and saved too."""
+    Then, when ``language`` is enabled, the language field is trained on the frozen geometry
+    (teacher: :func:`~neoedit.language.training.resolve_teacher`) and saved too."""
     dev = resolve_device(device)
     if is_store(Path(out)) or find_store(Path(out)) is not None:
         raise NeoError(
@@ -366,12 +366,6 @@ def train(
         scene = trainer.run()
         optimizer = trainer.optimizer
     if language is not None:
-        if resolve_teacher(language, data) is None:
-            Console(stderr=True).print(
-                "[yellow]no language teacher in this data (no instance masks + names, no CLIP "
-                "path): the scene has no language field[/]"
-            )
-        else:
-            train_language(scene, data, language)
-            save_scene(Path(out), scene, optimizer)
+        train_language(scene, data, language)
+        save_scene(Path(out), scene, optimizer)
     return scene
