@@ -10,8 +10,11 @@ Sections (run alone, on an otherwise idle machine; they build on each other):
   largest consistent piece; wall time.
 - poses: both datasets' cameras on the photos they share, after a similarity alignment
   (Umeyama on the camera centres): largest centre distance and rotation difference.
-- train: ``neo train --max-minutes 5`` on the processed dataset; held-out PSNR, and a strip
+- train: ``neo train --max-minutes 5`` on the processed dataset (radiance field, then the
+  label-free geometric language field); held-out PSNR, the language vocabulary, and a strip
   of held-out renders over the photos (OUT/heldout_strip.png).
+- edit: ``neo query SCENE "can"`` (box picture) and ``neo remove SCENE "can"`` (before/after
+  renders); wall times.
 Writes ``OUT/<section>.json``.
 """
 
@@ -31,7 +34,7 @@ import numpy as np
 from neoedit.data import load_scene_data
 from neoedit.data.markers import umeyama
 
-SECTIONS = ("import", "process", "poses", "train")
+SECTIONS = ("import", "process", "poses", "train", "edit")
 
 
 def run(cmd: list[str]) -> tuple[int, float, str]:
@@ -134,7 +137,6 @@ def section_train(out: Path, minutes: float) -> dict:
         str(minutes),
         "--max-steps",
         "100000",
-        "--skip-language",
         "--eval-every",
         "0",
     )
@@ -144,10 +146,14 @@ def section_train(out: Path, minutes: float) -> dict:
     meta = json.loads((scene / "scene.json").read_text())
     last = meta["history"][-1]
     strip = _strip(scene, out / "processed", out / "heldout_strip.png")
+    lang = meta.get("language") or {}
     result = {
         "exit": rc,
         "wall_s": round(seconds, 1),
         "steps": meta["step"],
+        "language_teacher": lang.get("teacher"),
+        "language_s": lang.get("seconds"),
+        "vocabulary": lang.get("vocabulary"),
         "train_s": round(meta["train_seconds"], 1),
         "heldout_psnr": last.get("eval_psnr"),
         "train_psnr": last.get("train_psnr"),
@@ -157,6 +163,28 @@ def section_train(out: Path, minutes: float) -> dict:
     }
     print(result)
     return result
+
+
+def section_edit(out: Path, prompt: str) -> dict:
+    scene = out / "scene"
+    query = neo("query", str(scene), prompt, "--out", str(out / "query"))
+    query += ["--json", str(out / "query_box.json")]
+    rc_q, t_q, text_q = run(query)
+    print(text_q)
+    remove = neo("remove", str(scene), prompt, "--out", str(out / "removed"), "--overwrite")
+    rc_r, t_r, text_r = run(remove)
+    print(text_r)
+    box = json.loads((out / "query_box.json").read_text()) if rc_q == 0 else None
+    return {
+        "prompt": prompt,
+        "query_exit": rc_q,
+        "query_s": round(t_q, 1),
+        "box": box,
+        "remove_exit": rc_r,
+        "remove_s": round(t_r, 1),
+        "remove_output": " ".join(text_r.split())[-600:],
+        "commands": [shlex.join(query[2:]), shlex.join(remove[2:])],
+    }
 
 
 def _strip(scene_dir: Path, data_dir: Path, path: Path) -> Path:
@@ -186,6 +214,7 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=Path("outputs/bench_real"))
     ap.add_argument("--only", nargs="*", choices=SECTIONS, default=list(SECTIONS))
     ap.add_argument("--minutes", type=float, default=5.0)
+    ap.add_argument("--prompt", default="can")
     args = ap.parse_args()
     if not (args.capture / "images").is_dir():
         sys.exit(f"capture not found: {args.capture} (the shared beer_can capture)")
@@ -200,6 +229,8 @@ def main() -> None:
             result = section_process(args.capture, args.out)
         elif name == "poses":
             result = section_poses(args.out)
+        elif name == "edit":
+            result = section_edit(args.out, args.prompt)
         else:
             result = section_train(args.out, args.minutes)
         result["date"] = time.strftime("%Y-%m-%d %H:%M")

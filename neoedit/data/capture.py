@@ -13,6 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
+from neoedit.errors import DataError
+
 # lens models we undistort: name -> parameter names in COLMAP's order
 LENS_MODELS: dict[str, tuple[str, ...]] = {
     "SIMPLE_PINHOLE": ("f", "cx", "cy"),
@@ -120,3 +122,15 @@ class Capture:
 def opencv_to_opengl(camera_to_world: np.ndarray) -> np.ndarray:
     """Flip the camera y and z axes (OpenCV/COLMAP: y down, z forward -> OpenGL)."""
     return camera_to_world @ np.diag([1.0, -1.0, -1.0, 1.0])
+
+
+def read_photo(path: Path, grey: bool = False) -> np.ndarray:
+    """A photo as stored (BGR or grey uint8), EXIF orientation ignored as COLMAP ignores it:
+    the pixels the poses and lenses were estimated on."""
+    import cv2
+
+    flags = (cv2.IMREAD_GRAYSCALE if grey else cv2.IMREAD_COLOR) | cv2.IMREAD_IGNORE_ORIENTATION
+    image = cv2.imread(str(path), flags)
+    if image is None:
+        raise DataError(f"cannot read image {path}")
+    return image

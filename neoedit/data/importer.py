@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from neoedit.data.capture import Capture, Lens
+from neoedit.data.capture import Capture, Lens, read_photo
 from neoedit.data.orient import Orientation, OrientConfig, orient
 from neoedit.data.pieces import PairCheck, PieceCheckConfig, find_pieces
 from neoedit.errors import DataError
@@ -104,9 +104,7 @@ def _convert(capture: Capture, i: int, scale: float, maps: dict) -> tuple[np.nda
     if key not in maps:
         maps[key] = undistort_lens(lens, scale)
     k, map1, map2, size = maps[key]
-    image = cv2.imread(str(capture.image_dir / capture.names[i]), cv2.IMREAD_COLOR)
-    if image is None:
-        raise DataError(f"cannot read image {capture.image_dir / capture.names[i]}")
+    image = read_photo(capture.image_dir / capture.names[i])
     if image.shape[:2] != (lens.height, lens.width):
         raise DataError(
             f"{capture.names[i]} is {image.shape[1]}x{image.shape[0]} but its camera says "
@@ -142,6 +140,12 @@ def import_capture(
     part = capture.subset(index)
     if len(part) < 3:
         raise DataError(f"only {len(part)} photos to import; need at least 3")
+    output_names = [f"images/{Path(n).with_suffix('.png').as_posix()}" for n in part.names]
+    if len(set(output_names)) != len(output_names):
+        raise DataError(
+            f"{capture.source}: two photos would both be written as the same PNG (same name "
+            "with different suffixes); rename one"
+        )
     frame = orient(part, cfg.orient)
     width = next(iter(sizes))[0]
     scale = min(1.0, cfg.max_width / width) if cfg.max_width else 1.0
@@ -153,7 +157,8 @@ def import_capture(
         (tmp / "images").mkdir()
         for j in track(range(len(part)), "undistorting photos"):
             image, k = _convert(part, j, scale, maps)
-            name = f"images/{Path(part.names[j]).stem}.png"
+            name = output_names[j]
+            (tmp / name).parent.mkdir(parents=True, exist_ok=True)
             if not cv2.imwrite(str(tmp / name), image):
                 raise DataError(f"cannot write {out / name}")
             c2w = frame.transform @ part.camera_to_world[j]

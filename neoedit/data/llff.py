@@ -12,17 +12,13 @@ from pathlib import Path
 
 import numpy as np
 
-from neoedit.data.capture import Capture, Lens
+from neoedit.data.capture import Capture, Lens, read_photo
 from neoedit.data.colmap import IMAGE_SUFFIXES
 from neoedit.errors import DataError
 
 
 def _image_size(path: Path) -> tuple[int, int]:
-    import cv2
-
-    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if image is None:
-        raise DataError(f"cannot read image {path}")
+    image = read_photo(path, grey=True)
     return int(image.shape[1]), int(image.shape[0])
 
 

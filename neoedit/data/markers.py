@@ -21,16 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from neoedit.errors import DataError
-
-DICTIONARIES = ("4X4_50", "4X4_100", "5X5_50", "5X5_100", "6X6_50", "6X6_250", "ARUCO_ORIGINAL")
-
-
-def aruco_dictionary(name: str):  # noqa: ANN201 (cv2 object)
-    import cv2
-
-    if name not in DICTIONARIES:
-        raise DataError(f"unknown ArUco dictionary {name!r} (choose {', '.join(DICTIONARIES)})")
-    return cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, f"DICT_{name}"))
+from neoedit.utils.aruco import aruco_dictionary
 
 
 def detect_markers(image: np.ndarray, dictionary_name: str = "4X4_50") -> dict[int, np.ndarray]:
@@ -149,10 +140,11 @@ def capture_markers(capture, dictionary_name: str) -> MarkerMap:  # noqa: ANN001
     import cv2
 
     def detections(i: int) -> dict[int, np.ndarray]:
-        image = cv2.imread(str(capture.image_dir / capture.names[i]), cv2.IMREAD_GRAYSCALE)
-        if image is None:
-            raise DataError(f"cannot read image {capture.image_dir / capture.names[i]}")
-        return detect_markers(image, dictionary_name)
+        from neoedit.data.capture import read_photo
+
+        return detect_markers(
+            read_photo(capture.image_dir / capture.names[i], grey=True), dictionary_name
+        )
 
     def rays(i: int, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         lens = capture.lenses[i]

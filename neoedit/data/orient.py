@@ -77,19 +77,30 @@ class Orientation:
         }
 
 
-def look_centre(camera_to_world: np.ndarray) -> np.ndarray:
-    """The point closest (least squares) to all optical axes (OpenGL: the camera looks -z)."""
-    origins = camera_to_world[:, :3, 3]
-    dirs = -camera_to_world[:, :3, 2]
+def look_centre(capture: Capture) -> np.ndarray:
+    """The point the cameras look at: the point closest (least squares) to all optical axes
+    when it lies in front of nearly all cameras (a walk around an object); for a forward-
+    facing capture, whose axes are nearly parallel, a point straight ahead of the mean camera
+    at the scene's depth (the LLFF bounds, else the median depth of the sparse points)."""
+    c2w = capture.camera_to_world
+    origins = c2w[:, :3, 3]
+    dirs = -c2w[:, :3, 2]  # OpenGL: the camera looks down -z
     dirs = dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
     proj = np.eye(3)[None] - dirs[:, :, None] * dirs[:, None, :]
     a = proj.sum(0)
     b = (proj @ origins[:, :, None]).sum(0)[:, 0]
-    if np.linalg.cond(a) > 1e8:  # parallel axes (a forward-facing capture): in front of them
-        return origins.mean(0) + dirs.mean(0) * np.median(
-            np.linalg.norm(origins - origins.mean(0), axis=1) + 1.0
-        )
-    return np.linalg.solve(a, b)
+    if np.linalg.cond(a) < 1e6:
+        point = np.linalg.solve(a, b)
+        if (((point - origins) * dirs).sum(1) > 0).mean() >= 0.9:
+            return point
+    ahead = dirs.mean(0) / max(float(np.linalg.norm(dirs.mean(0))), 1e-12)
+    if capture.bounds is not None:
+        depth = float(np.median(capture.bounds.mean(1)))
+    elif len(capture.points):
+        depth = float(np.median((capture.points - origins.mean(0)) @ ahead))
+    else:
+        depth = float(np.median(np.linalg.norm(origins - origins.mean(0), axis=1))) or 1.0
+    return origins.mean(0) + ahead * max(depth, 1e-6)
 
 
 def _camera_up(capture: Capture) -> tuple[np.ndarray, str]:
@@ -141,7 +152,7 @@ def _frame(up: np.ndarray, cam_axes: np.ndarray) -> np.ndarray:
 def orient(capture: Capture, cfg: OrientConfig | None = None) -> Orientation:
     """The metric z-up frame of ``capture`` and its scene box."""
     cfg = cfg or OrientConfig()
-    centre = look_centre(capture.camera_to_world)
+    centre = look_centre(capture)
     distance = float(np.median(np.linalg.norm(capture.centres - centre, axis=1)))
     if not np.isfinite(distance) or distance <= 0:
         raise DataError(f"{capture.source}: the cameras have no common point to look at")

@@ -21,8 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from neoedit.data.capture import Capture
-from neoedit.errors import DataError
+from neoedit.data.capture import Capture, read_photo
 
 
 @dataclass
@@ -57,9 +56,7 @@ class PairCheck:
 def _read_gray(capture: Capture, i: int, width: int):  # noqa: ANN202 (cv2 array, scale)
     import cv2
 
-    image = cv2.imread(str(capture.image_dir / capture.names[i]), cv2.IMREAD_GRAYSCALE)
-    if image is None:
-        raise DataError(f"cannot read image {capture.image_dir / capture.names[i]}")
+    image = read_photo(capture.image_dir / capture.names[i], grey=True)
     scale = min(1.0, width / image.shape[1])
     if scale < 1.0:
         image = cv2.resize(image, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
@@ -71,7 +68,9 @@ def _undistorted_points(capture: Capture, i: int, uv: np.ndarray) -> np.ndarray:
     import cv2
 
     lens = capture.lenses[i]
-    pts = cv2.undistortPoints(uv.reshape(-1, 1, 2), lens.matrix(), lens.distortion())
+    k = lens.matrix()
+    k[:2, 2] -= 0.5  # COLMAP's principal point -> OpenCV's pixel-centre convention
+    pts = cv2.undistortPoints(uv.reshape(-1, 1, 2), k, lens.distortion())
     return pts.reshape(-1, 2)
 
 
@@ -101,8 +100,9 @@ def check_pair(capture: Capture, i: int, shared: int, cfg: PieceCheckConfig) -> 
     good = [m[0] for m in pairs if len(m) == 2 and m[0].distance < 0.75 * m[1].distance]
     if len(good) < cfg.min_matches:
         return PairCheck(i, shared, len(good), None)
-    uv_i = np.array([kp_i[m.queryIdx].pt for m in good], dtype=np.float64) / s_i
-    uv_j = np.array([kp_j[m.trainIdx].pt for m in good], dtype=np.float64) / s_j
+    # OpenCV keypoints (pixel centres on integers) at the matching scale -> full resolution
+    uv_i = (np.array([kp_i[m.queryIdx].pt for m in good], dtype=np.float64) + 0.5) / s_i - 0.5
+    uv_j = (np.array([kp_j[m.trainIdx].pt for m in good], dtype=np.float64) + 0.5) / s_j - 0.5
     _, inlier = cv2.findFundamentalMat(uv_i, uv_j, cv2.FM_RANSAC, 1.0 / s_i, 0.999)
     if inlier is None or int(inlier.sum()) < cfg.min_matches:
         return PairCheck(i, shared, 0 if inlier is None else int(inlier.sum()), None)

@@ -52,8 +52,17 @@ def register_scans(pre: Path, post: Path, dictionary_name: str = "4X4_50") -> Re
     return Registration(transform, common, rms)
 
 
+def _safe_relative(name: str, where: Path) -> Path:
+    path = Path(name)
+    if path.is_absolute() or ".." in path.parts:
+        raise DataError(f"{where}: {name!r} is outside the dataset folder; cannot copy it")
+    return path
+
+
 def write_registered(pre: Path, post: Path, reg: Registration, out: Path, overwrite: bool) -> None:
-    """A copy of the POST dataset whose cameras are in PRE's frame (with PRE's scene box)."""
+    """A copy of the POST dataset whose cameras are in PRE's frame (with PRE's scene box).
+    Depth is rescaled with the registration; instance labels and ``objects.json`` are left
+    out (their boxes are in POST's old frame)."""
     post_tf = Path(post) / "transforms.json" if Path(post).is_dir() else Path(post)
     pre_tf = Path(pre) / "transforms.json" if Path(pre).is_dir() else Path(pre)
     meta = json.loads(post_tf.read_text())
@@ -62,8 +71,13 @@ def write_registered(pre: Path, post: Path, reg: Registration, out: Path, overwr
         c2w = reg.transform @ np.asarray(frame["transform_matrix"], dtype=np.float64)
         c2w[:3, :3] /= reg.scale
         frame["transform_matrix"] = np.round(c2w, 9).tolist()
+        frame.pop("instance_path", None)
     if "scene_aabb" in pre_meta:
         meta["scene_aabb"] = pre_meta["scene_aabb"]
+    if any(str(f.get("depth_file_path", "")).endswith(".png") for f in meta["frames"]):
+        meta["depth_unit_scale_factor"] = reg.scale * float(
+            meta.get("depth_unit_scale_factor", 1e-3)
+        )
     meta["neoedit_registration"] = {
         "pre": str(pre_tf.parent.resolve()),
         "post": str(post_tf.parent.resolve()),
@@ -71,19 +85,18 @@ def write_registered(pre: Path, post: Path, reg: Registration, out: Path, overwr
         "transform": np.round(reg.transform, 9).tolist(),
         "rms_m": reg.rms_m,
     }
+    keys = ("file_path", "depth_file_path", "mask_path")
+    names = sorted(
+        {str(_safe_relative(f[k], post_tf)) for f in meta["frames"] for k in keys if k in f}
+    )
     with atomic_directory(out, overwrite=overwrite, kind="dataset") as tmp:
-        names = {
-            f[k]
-            for f in meta["frames"]
-            for k in ("file_path", "depth_file_path", "mask_path", "instance_path")
-            if k in f
-        }
-        for name in sorted(names):
+        for name in names:
             source = post_tf.parent / name
             if not source.is_file():
                 raise DataError(f"{post_tf}: {name} not found")
             (tmp / name).parent.mkdir(parents=True, exist_ok=True)
-            shutil.copy2(source, tmp / name)
-        if (post_tf.parent / "objects.json").is_file():
-            shutil.copy2(post_tf.parent / "objects.json", tmp / "objects.json")
+            if name.endswith(".npy"):  # depth in metres: into PRE's units
+                np.save(tmp / name, np.load(source, allow_pickle=False) * reg.scale)
+            else:
+                shutil.copy2(source, tmp / name)
         atomic_write_json(tmp / "transforms.json", meta)

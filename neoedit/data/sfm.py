@@ -12,6 +12,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from neoedit.data.capture import LENS_MODELS
 from neoedit.data.colmap import IMAGE_SUFFIXES
 from neoedit.errors import DataError
 from neoedit.utils.progress import make_progress
@@ -84,6 +85,10 @@ def run_sfm(images: Path, work: Path, cfg: SfMConfig) -> SfMResult:
     names = list_images(images)
     if len(names) < 3:
         raise DataError(f"{images}: {len(names)} photos; structure-from-motion needs at least 3")
+    if cfg.camera_model not in LENS_MODELS:
+        raise DataError(
+            f"--sfm.camera-model must be one of {', '.join(LENS_MODELS)}, got {cfg.camera_model!r}"
+        )
     if cfg.matcher not in MATCHERS:
         raise DataError(f"--sfm.matcher must be one of {', '.join(MATCHERS)}, got {cfg.matcher!r}")
     pycolmap.logging.minloglevel = 2  # our progress instead of COLMAP's log lines
@@ -115,21 +120,24 @@ def run_sfm(images: Path, work: Path, cfg: SfMConfig) -> SfMResult:
             lambda: _match(pycolmap, database, sequential, cfg),
         ),
     ]
-    with make_progress(transient=True) as progress:
-        for label, run in stages:
-            task = progress.add_task(label, total=1, status="")
-            run()
-            progress.advance(task)
-        task = progress.add_task("mapping", total=len(names), status="")
-        options = pycolmap.IncrementalPipelineOptions()
-        options.random_seed = cfg.seed
-        models = pycolmap.incremental_mapping(
-            database,
-            images,
-            work / "sparse",
-            options,
-            next_image_callback=lambda: progress.advance(task),
-        )
+    try:
+        with make_progress(transient=True) as progress:
+            for label, run in stages:
+                task = progress.add_task(label, total=1, status="")
+                run()
+                progress.advance(task)
+            task = progress.add_task("mapping", total=len(names), status="")
+            options = pycolmap.IncrementalPipelineOptions()
+            options.random_seed = cfg.seed
+            models = pycolmap.incremental_mapping(
+                database,
+                images,
+                work / "sparse",
+                options,
+                next_image_callback=lambda: progress.advance(task),
+            )
+    except (RuntimeError, ValueError) as e:  # pycolmap reports its failures this way
+        raise DataError(f"structure-from-motion failed on {images}: {e}") from None
     return _largest(models, work, images, len(names), cfg)
 
 

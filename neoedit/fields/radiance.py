@@ -34,6 +34,12 @@ class RadianceFieldConfig:
     (:mod:`neoedit.fields.background`) instead of the constant background colour. Default
     (None): learned for photos without an alpha channel (real captures see a room beyond the
     box), constant for RGBA renders such as NEO-Sim."""
+    closed_bottom: bool = False
+    """With a learned background, rays leaving the box through its bottom face see black,
+    so a plain floor is learnt as a surface instead of painted in as far away (the box's
+    bottom must lie under the table / floor, as in z-up data from ``neo import``). Off by
+    default: on beer_can it gave the floor a surface but cost 4 dB of held-out PSNR in a
+    5-minute training (benchmarks/RESULTS.md)."""
 
 
 class Field(Protocol):
@@ -88,7 +94,11 @@ class RadianceField(nn.Module):
             nn.ReLU(),
             nn.Linear(cfg.hidden_dim_color, 3),
         )
-        self.background_head = DirectionalBackground() if cfg.learned_background else None
+        self.background_head = (
+            DirectionalBackground(closed_box=self.aabb if cfg.closed_bottom else None)
+            if cfg.learned_background
+            else None
+        )
 
     def normalize(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """World points (N,3) -> unit-cube coordinates (N,3) and an inside-the-box mask (N,)."""

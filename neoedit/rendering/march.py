@@ -140,6 +140,6 @@ def march_render(
         alive = (trans[active] > stop_transmittance) & (count[active] > pos)
         active = active[alive]
     acc = 1.0 - trans
-    rgb = rgb + trans[:, None] * background_colors(background, rays.directions)
+    rgb = rgb + trans[:, None] * background_colors(background, rays.origins, rays.directions)
     depth = depth / acc.clamp_min(1e-6)
     return {"rgb": rgb, "depth": depth, "depth_z": depth * rays.z_scale, "accumulation": acc}

@@ -166,7 +166,7 @@ def render_rays(
     sigma = torch.zeros(n * m, device=pts.device, dtype=sigma_k.dtype).index_put((idx,), sigma_k)
     rgb = torch.zeros(n * m, 3, device=pts.device, dtype=rgb_k.dtype).index_put((idx,), rgb_k)
     weights = render_weights(sigma.reshape(n, m), samples.deltas)
-    bg = background_colors(background, rays.directions)
+    bg = background_colors(background, rays.origins, rays.directions)
     out = composite(weights, rgb.reshape(n, m, 3), samples.t_mid, bg)
     out["depth_z"] = out["depth"] * rays.z_scale
     out["weights"] = weights

@@ -53,6 +53,8 @@ def render_view(
     depth = np.where(hit, depth, 0.0).astype(np.float32)
     labels = np.full(seg.shape, BACKGROUND_ID, np.uint8)
     labels[seg == world.table] = TABLE_ID
+    for marker in world.markers:  # markers lie on the table: they are part of it
+        labels[seg == marker] = TABLE_ID
     labels[seg == world.robot] = ROBOT_ID
     for name, body in world.bodies.items():
         labels[seg == body] = world.instance_ids[name]

@@ -16,6 +16,7 @@ import yaml
 from pydantic import ConfigDict, TypeAdapter, ValidationError
 
 from neoedit.errors import SpecError
+from neoedit.utils.aruco import DICTIONARIES
 
 Vec3 = tuple[float, float, float]
 _FORBID_EXTRA = ConfigDict(extra="forbid")  # unknown keys in a spec are errors
@@ -45,6 +46,29 @@ class ObjectSpec:
 
 
 @dataclass
+class MarkerSpec:
+    """One ArUco marker lying on the table (:mod:`neoedit.sim.markers` draws it)."""
+
+    __pydantic_config__ = _FORBID_EXTRA
+
+    id: int
+    center_m: tuple[float, float]
+    """x, y of its centre on the table top (world metres)."""
+    side_m: float = 0.08
+    """Side of the black square (a white quiet zone of a quarter side surrounds it)."""
+    yaw_deg: float = 0.0
+    dictionary: str = "4X4_50"
+
+    def __post_init__(self) -> None:
+        if self.dictionary not in DICTIONARIES:
+            raise ValueError(f"dictionary must be one of {', '.join(DICTIONARIES)}")
+        if not 0 <= self.id < DICTIONARIES[self.dictionary]:
+            raise ValueError(f"id must be in 0..{DICTIONARIES[self.dictionary] - 1}")
+        if not 0.005 <= self.side_m <= 1.0:
+            raise ValueError("side_m must be between 0.005 and 1 m")
+
+
+@dataclass
 class SetupSpec:
     """Table, fixed robot arm and lighting (the paper uses two robot setups)."""
 
@@ -68,10 +92,18 @@ class SetupSpec:
     diffuse: float = 0.45
     specular: float = 0.0
     shadows: bool = True
+    markers: list[MarkerSpec] = field(default_factory=list)
+    """ArUco markers lying on the table (scale and frame for real-style registration); ids
+    unique."""
     workspace_center_m: Vec3 = (0.0, 0.0, 0.04)
     """Where the scan trajectory looks."""
     workspace_half_extent_m: tuple[float, float] = (0.3, 0.25)
     """Half size (x, y) of the area where objects are placed."""
+
+    def __post_init__(self) -> None:
+        ids = [m.id for m in self.markers]
+        if len(set(ids)) != len(ids):
+            raise ValueError("markers: every marker needs its own id")
 
 
 @dataclass

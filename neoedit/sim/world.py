@@ -17,6 +17,7 @@ from scipy.spatial.transform import Rotation
 from neoedit.errors import SpecError
 from neoedit.geometry import OrientedBox, rot_z, yaw_of_rotation
 from neoedit.geometry.transforms import apply_transform, make_transform
+from neoedit.sim.markers import add_markers
 from neoedit.sim.spec import ActionSpec, ObjectSpec, SceneSpec
 
 BACKGROUND_ID = 0
@@ -87,6 +88,7 @@ class SimWorld:
             pb.changeVisualShape(
                 self.table, -1, rgbaColor=setup.table_rgba, physicsClientId=self.client
             )
+        self.markers = add_markers(self.client, setup.markers)
         robot = resolve_asset(setup.robot_urdf, self.spec_dir, self.objects_dir)
         orn = pb.getQuaternionFromEuler([0, 0, np.deg2rad(setup.robot_yaw_deg)])
         self.robot = pb.loadURDF(

@@ -79,7 +79,7 @@ def median_camera_distance(data: SceneData) -> float:
 
 
 def _field_config(cfg: RadianceFieldConfig | None, data: SceneData) -> RadianceFieldConfig:
-    """The field config with its data-dependent default resolved: a learned background for
+    """The field config with its data-dependent defaults resolved: a learned background for
     photos (no alpha channel, or an alpha that is opaque everywhere)."""
     cfg = cfg or RadianceFieldConfig()
     if cfg.learned_background is None:
@@ -320,6 +320,7 @@ def train(
         )
     if cfg.depth_loss_weight < 0:
         cfg = dataclasses.replace(cfg, depth_loss_weight=0.1 if data.depth_m is not None else 0.0)
+    field_cfg = _field_config(field_cfg, data)
     if resume:
         scene = load_scene(out, dev)
         scene.meta.train = dataclasses.asdict(cfg)
@@ -335,7 +336,7 @@ def train(
             data_path=str(Path(data_path).resolve()),
             aabb_m=scene_box(data),
             background_rgb=list(data.background_rgb or (1.0, 1.0, 1.0)),
-            field=_field_config(field_cfg, data),
+            field=field_cfg,
             grid=grid_cfg or OccupancyGridConfig(),
             render=render_cfg,
             train=dataclasses.asdict(cfg),
