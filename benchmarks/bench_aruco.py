@@ -29,6 +29,7 @@ from scipy.spatial.transform import Rotation
 
 from neoedit.data import load_scene_data
 from neoedit.data.markers import dataset_markers, marker_frame
+from neoedit.data.register import write_moved
 from neoedit.sim.run import simulate_scene
 from neoedit.sim.spec import MarkerSpec
 from neoedit.sim.suite import benchmark_scenes
@@ -46,19 +47,6 @@ def random_similarity(rng: np.random.Generator) -> np.ndarray:
     out[:3, :3] = rng.uniform(0.2, 5.0) * Rotation.random(random_state=rng).as_matrix()
     out[:3, 3] = rng.uniform(-3, 3, 3)
     return out
-
-
-def moved_copy(src: Path, dst: Path, sim: np.ndarray) -> None:
-    """A copy of the dataset ``src`` whose cameras are moved by the similarity ``sim``."""
-    shutil.copytree(src, dst)
-    meta = json.loads((dst / "transforms.json").read_text())
-    scale = np.cbrt(np.linalg.det(sim[:3, :3]))
-    for frame in meta["frames"]:
-        c2w = sim @ np.asarray(frame["transform_matrix"])
-        c2w[:3, :3] /= scale
-        frame["transform_matrix"] = c2w.tolist()
-    meta.pop("scene_aabb", None)
-    (dst / "transforms.json").write_text(json.dumps(meta))
 
 
 def pose_errors(got: np.ndarray, true: np.ndarray) -> dict:
@@ -89,19 +77,18 @@ def main() -> None:
     rng = np.random.default_rng(args.seed)
     results = {"scene": args.scene, "markers": [dataclasses.asdict(m) for m in MARKERS]}
     # 1. orientation of a scan in an arbitrary frame from the markers
-    for name in ("pre", "post"):
+    sims = {name: random_similarity(rng) for name in ("pre", "post")}
+    for name, sim in sims.items():
         moved = args.out / f"{name}_moved"
         shutil.rmtree(moved, ignore_errors=True)
-        moved_copy(sim_dir / name, moved, random_similarity(rng))
+        write_moved(sim_dir / name, sim, moved)
     pre_moved = load_scene_data(args.out / "pre_moved")
     markers = dataset_markers(pre_moved, "4X4_50")
     transform, scale = marker_frame(markers, 0.08, pre_moved.cameras.camera_to_world[:, :3, 3])
     true_pre = load_scene_data(sim_dir / "pre").cameras.camera_to_world
     got = transform[None] @ pre_moved.cameras.camera_to_world
     got[:, :3, :3] /= scale
-    true_scale = 1.0 / np.cbrt(
-        np.linalg.det(json_sim(args.out / "pre_moved", sim_dir / "pre")[:3, :3])
-    )
+    true_scale = 1.0 / np.cbrt(np.linalg.det(sims["pre"][:3, :3]))
     results["orientation"] = {
         "markers_seen": {str(k): v for k, v in markers.views.items()},
         "scale_error_pct": round(100 * (scale / true_scale - 1), 3),
@@ -124,12 +111,11 @@ def main() -> None:
 
     proc = subprocess.run(cmd, capture_output=True, text=True)
     print(proc.stdout + proc.stderr)
-    moved_sim = json_sim(args.out / "post_moved", sim_dir / "post")
     true_post = load_scene_data(sim_dir / "post").cameras.camera_to_world
     got_post = load_scene_data(reg).cameras.camera_to_world
     meta = json.loads((reg / "transforms.json").read_text())["neoedit_registration"]
     reg_scale = float(np.cbrt(np.linalg.det(np.asarray(meta["transform"])[:3, :3])))
-    true_reg_scale = 1.0 / float(np.cbrt(np.linalg.det(moved_sim[:3, :3])))
+    true_reg_scale = 1.0 / float(np.cbrt(np.linalg.det(sims["post"][:3, :3])))
     results["register"] = {
         "exit": proc.returncode,
         "markers": meta["markers"],
@@ -141,19 +127,6 @@ def main() -> None:
     results["date"] = time.strftime("%Y-%m-%d %H:%M")
     print(json.dumps(results, indent=2))
     (args.out / "results.json").write_text(json.dumps(results, indent=2))
-
-
-def json_sim(moved: Path, original: Path) -> np.ndarray:
-    """The similarity that moved ``original``'s cameras to ``moved``'s (from two cameras'
-    centres and rotations: exact, as both are written by this script)."""
-    a = load_scene_data(original).cameras.camera_to_world
-    b = load_scene_data(moved).cameras.camera_to_world
-    rot = b[0, :3, :3] @ a[0, :3, :3].T
-    scale = np.linalg.norm(b[1, :3, 3] - b[0, :3, 3]) / np.linalg.norm(a[1, :3, 3] - a[0, :3, 3])
-    out = np.eye(4)
-    out[:3, :3] = scale * rot
-    out[:3, 3] = b[0, :3, 3] - scale * rot @ a[0, :3, 3]
-    return out
 
 
 if __name__ == "__main__":

@@ -391,3 +391,16 @@ def test_register_moves_a_later_scan_into_the_earlier_frame(tmp_path, capsys):
     )
     assert "2 or more ArUco markers" in " ".join(capsys.readouterr().err.split())
     assert not (tmp_path / "reg2").exists()
+
+
+@pytest.mark.parametrize(
+    "option", [["--piece", "banana"], ["--holdout-every", "1"], ["--orient.scale", "-2"]]
+)
+def test_bad_options_are_refused_before_structure_from_motion(tmp_path, capsys, option):
+    """``neo process`` checks its options before the photos are even read."""
+    photos = tmp_path / "photos"
+    photos.mkdir()  # empty: any work on it would fail with another message
+    assert main(["process", str(photos), "--out", str(tmp_path / "ds"), *option]) == 2
+    err = " ".join(capsys.readouterr().err.split())
+    assert option[0] in err and "photos" not in err
+    assert not (tmp_path / "ds").exists()

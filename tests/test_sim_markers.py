@@ -4,8 +4,6 @@ arbitrary frame is brought back by them (orientation and `neo register`)."""
 from __future__ import annotations
 
 import dataclasses
-import json
-import shutil
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +12,7 @@ import pytest
 from neoedit.cli import main
 from neoedit.data import load_scene_data
 from neoedit.data.markers import dataset_markers, detect_markers, marker_frame
+from neoedit.data.register import write_moved
 from neoedit.sim.markers import marker_corners
 from neoedit.sim.run import simulate_scene
 from neoedit.sim.spec import MarkerSpec, ScanSpec
@@ -62,14 +61,7 @@ def test_markers_are_detected_where_the_simulator_put_them(marker_sim: Path):
 
 
 def _moved(src: Path, dst: Path, sim: np.ndarray) -> Path:
-    shutil.copytree(src, dst)
-    meta = json.loads((dst / "transforms.json").read_text())
-    scale = np.cbrt(np.linalg.det(sim[:3, :3]))
-    for frame in meta["frames"]:
-        c2w = sim @ np.asarray(frame["transform_matrix"])
-        c2w[:3, :3] /= scale
-        frame["transform_matrix"] = c2w.tolist()
-    (dst / "transforms.json").write_text(json.dumps(meta))
+    write_moved(src, sim, dst)
     return dst
 
 

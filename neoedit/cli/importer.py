@@ -46,8 +46,8 @@ class _ImportBase:
         raise NotImplementedError
 
     def run(self) -> None:
-        _check_options(self.max_width, self.orient)
         cfg = ImportConfig(self.max_width, self.piece, self.holdout_every, self.orient, self.check)
+        cfg.check()
         check_writable_output(
             self.out, [self.src, self.images], kind="dataset", overwrite=self.overwrite
         )
@@ -75,17 +75,6 @@ class ImportLLFFCommand(_ImportBase):
         from neoedit.data.llff import read_llff
 
         return read_llff(self.src, self.images)
-
-
-def _check_options(max_width: int | None, orient: OrientConfig) -> None:
-    if max_width is not None and max_width < 16:
-        raise NeoError(f"--max-width must be at least 16 px, got {max_width}")
-    for name in ("scale", "camera_distance_m"):
-        value = getattr(orient, name)
-        if value is not None and not (value > 0 and value < float("inf")):
-            raise NeoError(
-                f"--orient.{name.replace('_', '-')} must be a positive number, got {value}"
-            )
 
 
 ImportCommands = Annotated[
@@ -154,7 +143,8 @@ class ProcessCommand:
         is_video = src.is_file() and src.suffix in VIDEO_SUFFIXES
         if src.is_file() and not is_video:
             raise NeoError(f"{src}: not a photo folder or a video ({', '.join(VIDEO_SUFFIXES)})")
-        _check_options(self.max_width, self.orient)
+        cfg = ImportConfig(self.max_width, self.piece, self.holdout_every, self.orient)
+        cfg.check()
         check_writable_output(self.out, [src], kind="dataset", overwrite=self.overwrite)
         Path(self.out).absolute().parent.mkdir(parents=True, exist_ok=True)
         work = Path(
@@ -176,7 +166,6 @@ class ProcessCommand:
                 f"{seconds:.0f} s"
             )
             capture = read_colmap(result.model, images)
-            cfg = ImportConfig(self.max_width, self.piece, self.holdout_every, self.orient)
 
             def keep_model(folder: Path) -> None:
                 shutil.copytree(result.model, folder / "colmap" / "sparse" / "0")

@@ -34,6 +34,24 @@ class ImportConfig:
     orient: OrientConfig = field(default_factory=OrientConfig)
     pieces: PieceCheckConfig = field(default_factory=PieceCheckConfig)
 
+    def check(self) -> None:
+        """DataError naming the first option out of range (before any photo is read)."""
+        if self.max_width is not None and self.max_width < 16:
+            raise DataError(f"--max-width must be at least 16 px, got {self.max_width}")
+        if self.holdout_every < 2:
+            raise DataError(f"--holdout-every must be >= 2, got {self.holdout_every}")
+        if self.piece not in PIECE_CHOICES and not (self.piece.isdigit() and int(self.piece) >= 1):
+            raise DataError(
+                f"--piece must be one of {', '.join(PIECE_CHOICES)} or a piece number, got "
+                f"{self.piece!r}"
+            )
+        for name in ("scale", "camera_distance_m", "aruco_size_m"):
+            value = getattr(self.orient, name)
+            if value is not None and not (0 < value < float("inf")):
+                raise DataError(
+                    f"--orient.{name.replace('_', '-')} must be a positive number, got {value}"
+                )
+
 
 @dataclass
 class ImportReport:
@@ -133,8 +151,7 @@ def import_capture(
         raise DataError(
             f"{capture.source}: photos of several sizes {sorted(sizes)}; neoedit needs one size"
         )
-    if cfg.holdout_every < 2:
-        raise DataError(f"--holdout-every must be >= 2, got {cfg.holdout_every}")
+    cfg.check()
     pieces, checks = find_pieces(capture, cfg.pieces)
     index, chosen = _choose(capture, pieces, cfg.piece)
     part = capture.subset(index)

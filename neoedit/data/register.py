@@ -59,44 +59,64 @@ def _safe_relative(name: str, where: Path) -> Path:
     return path
 
 
-def write_registered(pre: Path, post: Path, reg: Registration, out: Path, overwrite: bool) -> None:
-    """A copy of the POST dataset whose cameras are in PRE's frame (with PRE's scene box).
-    Depth is rescaled with the registration; instance labels and ``objects.json`` are left
-    out (their boxes are in POST's old frame)."""
-    post_tf = Path(post) / "transforms.json" if Path(post).is_dir() else Path(post)
-    pre_tf = Path(pre) / "transforms.json" if Path(pre).is_dir() else Path(pre)
-    meta = json.loads(post_tf.read_text())
-    pre_meta = json.loads(pre_tf.read_text())
+def _transforms_path(dataset: Path) -> Path:
+    return Path(dataset) / "transforms.json" if Path(dataset).is_dir() else Path(dataset)
+
+
+def write_moved(
+    src: Path,
+    transform: np.ndarray,
+    out: Path,
+    overwrite: bool = False,
+    scene_aabb: list | None = None,
+    record: dict | None = None,
+) -> None:
+    """A copy of the dataset ``src`` with every camera moved by the similarity ``transform``
+    (4x4) and depth rescaled with it. Its scene box becomes ``scene_aabb`` (the old one is
+    dropped: it would no longer be axis-aligned); instance labels and ``objects.json`` are
+    left out (their boxes are in the old frame). ``record`` is stored as
+    ``neoedit_registration``."""
+    src_tf = _transforms_path(src)
+    meta = json.loads(src_tf.read_text())
+    scale = float(np.cbrt(np.linalg.det(transform[:3, :3])))
     for frame in meta["frames"]:
-        c2w = reg.transform @ np.asarray(frame["transform_matrix"], dtype=np.float64)
-        c2w[:3, :3] /= reg.scale
+        c2w = transform @ np.asarray(frame["transform_matrix"], dtype=np.float64)
+        c2w[:3, :3] /= scale
         frame["transform_matrix"] = np.round(c2w, 9).tolist()
         frame.pop("instance_path", None)
-    if "scene_aabb" in pre_meta:
-        meta["scene_aabb"] = pre_meta["scene_aabb"]
+    meta.pop("scene_aabb", None)
+    if scene_aabb is not None:
+        meta["scene_aabb"] = scene_aabb
     if any(str(f.get("depth_file_path", "")).endswith(".png") for f in meta["frames"]):
-        meta["depth_unit_scale_factor"] = reg.scale * float(
-            meta.get("depth_unit_scale_factor", 1e-3)
-        )
-    meta["neoedit_registration"] = {
+        meta["depth_unit_scale_factor"] = scale * float(meta.get("depth_unit_scale_factor", 1e-3))
+    if record is not None:
+        meta["neoedit_registration"] = record
+    keys = ("file_path", "depth_file_path", "mask_path")
+    names = sorted(
+        {str(_safe_relative(f[k], src_tf)) for f in meta["frames"] for k in keys if k in f}
+    )
+    with atomic_directory(out, overwrite=overwrite, kind="dataset") as tmp:
+        for name in names:
+            source = src_tf.parent / name
+            if not source.is_file():
+                raise DataError(f"{src_tf}: {name} not found")
+            (tmp / name).parent.mkdir(parents=True, exist_ok=True)
+            if name.endswith(".npy"):  # depth in metres: into the new units
+                np.save(tmp / name, np.load(source, allow_pickle=False) * scale)
+            else:
+                shutil.copy2(source, tmp / name)
+        atomic_write_json(tmp / "transforms.json", meta)
+
+
+def write_registered(pre: Path, post: Path, reg: Registration, out: Path, overwrite: bool) -> None:
+    """A copy of the POST dataset whose cameras are in PRE's frame (with PRE's scene box)."""
+    pre_tf, post_tf = _transforms_path(pre), _transforms_path(post)
+    record = {
         "pre": str(pre_tf.parent.resolve()),
         "post": str(post_tf.parent.resolve()),
         "markers": reg.markers,
         "transform": np.round(reg.transform, 9).tolist(),
         "rms_m": reg.rms_m,
     }
-    keys = ("file_path", "depth_file_path", "mask_path")
-    names = sorted(
-        {str(_safe_relative(f[k], post_tf)) for f in meta["frames"] for k in keys if k in f}
-    )
-    with atomic_directory(out, overwrite=overwrite, kind="dataset") as tmp:
-        for name in names:
-            source = post_tf.parent / name
-            if not source.is_file():
-                raise DataError(f"{post_tf}: {name} not found")
-            (tmp / name).parent.mkdir(parents=True, exist_ok=True)
-            if name.endswith(".npy"):  # depth in metres: into PRE's units
-                np.save(tmp / name, np.load(source, allow_pickle=False) * reg.scale)
-            else:
-                shutil.copy2(source, tmp / name)
-        atomic_write_json(tmp / "transforms.json", meta)
+    aabb = json.loads(pre_tf.read_text()).get("scene_aabb")
+    write_moved(post, reg.transform, out, overwrite, aabb, record)
