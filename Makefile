@@ -4,7 +4,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.neoedit-installed
 DEMO_OUT ?= outputs/demo
 
-.PHONY: setup demo test lint bench-sim bench-field bench-language bench-remove bench-move clean
+.PHONY: setup demo test lint bench bench-small bench-sim bench-field bench-language bench-remove bench-move clean
 
 setup: $(STAMP)
 
@@ -14,7 +14,7 @@ $(STAMP): pyproject.toml
 	test -x $(PY) || python3 -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -c "import torch" 2>/dev/null || $(PY) -m pip install -q torch==2.13.0
-	$(PY) -m pip install -q -e ".[dev,viewer]"
+	$(PY) -m pip install -q -e ".[dev,viewer,cluster]"
 	touch $(STAMP)
 
 # The end-to-end demo on embedded defaults: simulate, train (field + language), render,
@@ -50,12 +50,21 @@ demo: $(STAMP)
 	@echo "grasps of the nudged mug:      $(DEMO_OUT)/grasp/grasps.png, $(DEMO_OUT)/grasps.json"
 
 test: $(STAMP)
+	@# headless Chromium for the browser check of neo view (skipped with a message without it)
+	command -v chromium >/dev/null 2>&1 || { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium; } || echo "no chromium: tests/test_viewer_browser.py will be skipped"
 	$(PY) -m pytest tests
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check neoedit tests benchmarks
 	$(VENV)/bin/ruff format --check neoedit tests benchmarks
 	$(VENV)/bin/mypy
+
+# neo bench: the paper's Tables I-III and the assembly in one command (REPORT.md)
+bench-small: $(STAMP)
+	$(VENV)/bin/neo bench --profile small --out outputs/bench_small
+
+bench: $(STAMP)
+	$(VENV)/bin/neo bench --profile standard --out outputs/bench_standard
 
 bench-sim: $(STAMP)
 	$(PY) benchmarks/bench_sim.py --profile standard --out outputs/neosim_standard

@@ -19,7 +19,6 @@ preview, NEO, Seal-3D-style, oracle) to benchmarks/figures/move_strips.png.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import platform
 import shlex
@@ -29,9 +28,11 @@ from pathlib import Path
 
 import numpy as np
 
+from neoedit.bench.methods import ABLATIONS
+from neoedit.bench.methods import move_config as config_for
 from neoedit.cameras.rays import CameraTensors
 from neoedit.data import load_scene_data
-from neoedit.edit.relocate import Motion, MoveConfig, move
+from neoedit.edit.relocate import Motion, move
 from neoedit.errors import NeoError
 from neoedit.eval.evaluate import evaluate
 from neoedit.geometry import OrientedBox
@@ -46,33 +47,6 @@ from neoedit.utils.io import write_png
 from neoedit.viz.contact_sheet import tile_images
 
 MAIN = ("pre-edit", "preview", "neo", "seal3d", "oracle")
-ABLATIONS = {
-    "no-virtual-views": lambda c: dataclasses.replace(c, virtual_views=False),
-    "no-grid-inpaint": lambda c: dataclasses.replace(
-        c,
-        remove=dataclasses.replace(
-            c.remove, refine=dataclasses.replace(c.remove.refine, grid=False)
-        ),
-    ),
-    "no-mask-cond": lambda c: dataclasses.replace(
-        c,
-        remove=dataclasses.replace(
-            c.remove, refine=dataclasses.replace(c.remove.refine, mask_conditioned=False)
-        ),
-    ),
-    "field-distill-only": lambda c: dataclasses.replace(c, field_only=True),
-}
-
-
-def config_for(method: str) -> MoveConfig:
-    base = MoveConfig()
-    if method == "preview":
-        return dataclasses.replace(base, preview=True)
-    if method == "seal3d":
-        return dataclasses.replace(base, method="seal3d")
-    if method in ABLATIONS:
-        return ABLATIONS[method](base)
-    return base
 
 
 def query_check(scene: Scene, name: str, target: OrientedBox, source: OrientedBox) -> dict:

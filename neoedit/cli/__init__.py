@@ -9,6 +9,7 @@ from typing import Annotated, Union
 import tyro
 from rich.console import Console
 
+from neoedit.cli.bench import BenchCommand
 from neoedit.cli.data import InfoCommand
 from neoedit.cli.edit import MoveCommand, RemoveCommand
 from neoedit.cli.field import EvalCommand, RenderCommand, TrainCommand
@@ -52,6 +53,7 @@ Commands = Union[  # noqa: UP007
     Annotated[RestoreCommand, tyro.conf.subcommand("restore")],
     Annotated[DiffCommand, tyro.conf.subcommand("diff")],
     Annotated[ViewCommand, tyro.conf.subcommand("view")],
+    Annotated[BenchCommand, tyro.conf.subcommand("bench")],
 ]
 
 

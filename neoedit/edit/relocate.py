@@ -178,11 +178,7 @@ def move(
     if cfg.preview:
         timings = _preview(child, sources, targets, transforms)
     else:
-        timings = settle(child, cfg.distill)  # a preview or cut parent: start from what it shows
-        start = parent
-        if timings:
-            start = Scene(copy.deepcopy(child.field), copy.deepcopy(child.grid), child.meta)
-            start.language, start.surface_points_m = parent.language, parent.surface_points_m
+        start, timings = _settled(parent, child, cfg)
         timings.update(_distil_move(start, child, sources, targets, transforms, cfg, inpainter))
     t = time.perf_counter()
     edit = LanguageEdit(sources, list(zip(targets, transforms, strict=True)))
@@ -191,6 +187,49 @@ def move(
     child.meta.edits[-1]["timings"] = timings
     child.meta.edits[-1]["seconds"] = round(time.perf_counter() - t0, 2)
     return child
+
+
+def distil_removal(
+    parent: Scene,
+    boxes: list[OrientedBox],
+    cfg: MoveConfig | None = None,
+    prompt: str | None = None,
+) -> Scene:
+    """The Seal-3D-style removal (the paper's Table I row): the whole field distilled from one
+    teacher, the current field with the grown boxes emptied, by the baseline's two stages;
+    nothing is inpainted. ``parent`` is left unchanged."""
+    cfg = dataclasses.replace(cfg or MoveConfig(), method="seal3d", preview=False)
+    if not boxes:
+        raise NeoError("nothing to remove: give a prompt or --box")
+    check_edit_boxes(parent, boxes)
+    t0 = time.perf_counter()
+    sources = working_boxes(parent, boxes, cfg.remove)
+    record = {
+        "type": "remove",
+        "prompt": prompt,
+        "removal": "seal3d",
+        "boxes": [b.to_dict() for b in boxes],
+        "edit_boxes": [b.to_dict() for b in sources],
+        "config": dataclasses.asdict(cfg),
+    }
+    child = new_version(parent, record)
+    start, timings = _settled(parent, child, cfg)
+    timings.update(_distil_move(start, child, sources, [], [], cfg, None))
+    timings.update(update_language(parent, child, LanguageEdit(source=sources, targets=[])))
+    child.meta.edits[-1]["timings"] = timings
+    child.meta.edits[-1]["seconds"] = round(time.perf_counter() - t0, 2)
+    return child
+
+
+def _settled(parent: Scene, child: Scene, cfg: MoveConfig) -> tuple[Scene, dict[str, float]]:
+    """A preview or cut parent: settle its render-time edits into ``child`` first, and start
+    the distillation from what it shows; -> (the scene to start from, timings)."""
+    timings = settle(child, cfg.distill)
+    if not timings:
+        return parent, timings
+    start = Scene(copy.deepcopy(child.field), copy.deepcopy(child.grid), child.meta)
+    start.language, start.surface_points_m = parent.language, parent.surface_points_m
+    return start, timings
 
 
 def _check_not_into_cuts(parent: Scene, targets: list[OrientedBox]) -> None:

@@ -109,8 +109,16 @@ def psnr(mse: float) -> float:
 
 
 class Trainer:
+    """Fits ``scene``'s field to ``data``'s training views; :meth:`run` checkpoints to
+    ``out`` (``None``: nothing is saved, the scene stays in memory)."""
+
     def __init__(
-        self, data: SceneData, scene: Scene, cfg: TrainConfig, out: Path, device: torch.device
+        self,
+        data: SceneData,
+        scene: Scene,
+        cfg: TrainConfig,
+        out: Path | None,
+        device: torch.device,
     ):
         self.data, self.scene, self.cfg, self.out, self.device = data, scene, cfg, out, device
         self.cams = CameraTensors(data.cameras, device)
@@ -284,7 +292,8 @@ class Trainer:
                     status=f"PSNR {psnr(ema):5.2f} dB | {rays_per_s / 1e3:5.1f}k rays/s"
                     + (f" | eval {meta.history[-1]['eval_psnr']} dB" if meta.history else ""),
                 )
-                if last or (cfg.checkpoint_every and (step + 1) % cfg.checkpoint_every == 0):
+                checkpoint = cfg.checkpoint_every and (step + 1) % cfg.checkpoint_every == 0
+                if self.out is not None and (last or checkpoint):
                     save_scene(self.out, self.scene, self.optimizer)
                 if last:
                     break

@@ -222,6 +222,8 @@ class ViewerServer:
                 fov=view.fov_y,
                 aspect=view.aspect,
                 scale=scale,
+                thickness=1.5,  # pixels: viser's default, 2 cm in the world, fills the view
+                thickness_units="screen",  # from the first view (it sits in camera 0's frustum)
                 color=(110, 110, 110),
                 wxyz=wxyz,
                 position=position,

@@ -1,0 +1,208 @@
+"""``neo bench``: plan the units, run what is not cached (here or on Ray), write the report.
+
+Units are independent once their dependencies are done, so the Ray executor submits every
+unit whose dependencies have finished and collects them as they complete; the serial
+executor runs them in dependency order. Both call the same :func:`run_unit`, so a unit's
+result does not depend on where it ran (given the same ``threads``: float reductions on a
+different thread count may differ in their last bits).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from neoedit.bench.methods import ALL_METHODS
+from neoedit.bench.profiles import Profile
+from neoedit.bench.report import write_report
+from neoedit.bench.units import Unit, check_selection, plan_units, suite_specs, unit_keys
+from neoedit.bench.work import Context, cached, run_unit
+from neoedit.errors import NeoError
+from neoedit.sim.run import post_scan_names
+from neoedit.utils.io import atomic_write_json, mark_output, output_kind
+from neoedit.utils.progress import make_progress
+
+RUN_KIND = "bench"
+
+
+@dataclass
+class BenchConfig:
+    out: Path
+    """Run folder: units/ (cached work), figures/, REPORT.md, results.json."""
+    profile: Profile = "small"
+    """small: 64x48 scans, tiny field (minutes); standard: 320x240, neo train defaults (hours)."""
+    scenes: tuple[str, ...] = ()
+    """Scenes to run (default: all 12 of the suite)."""
+    methods: tuple[str, ...] = ()
+    """Methods to run where they apply (default: all)."""
+    data: Path | None = None
+    """Reuse this NEO-Sim suite folder (neo sim benchmark's output) instead of simulating."""
+    seed: int = 0
+    workers: int = 1
+    """Units run at once: 1 = here, serially; N > 1 = a local Ray with N workers."""
+    ray_address: str | None = None
+    """Join this Ray cluster (e.g. 'auto' or 'ray://host:10001') instead."""
+    threads: int | None = None
+    """torch / numba threads per unit (default: the cores of the process; with Ray, the
+    cores divided by the workers)."""
+
+
+def _data_ids(cfg: BenchConfig, scenes: list[str]) -> dict[str, str]:
+    """A reused suite's scenes enter the keys by the hash of their scene.json."""
+    if cfg.data is None:
+        return {}
+    ids = {}
+    for name in scenes:
+        spec = cfg.data / name / "scene.json"
+        if not spec.is_file():
+            raise NeoError(f"{cfg.data} has no scene {name} (no {spec}); run neo sim benchmark")
+        ids[name] = hashlib.sha256(spec.read_bytes()).hexdigest()[:16]
+    return ids
+
+
+def _check_out(out: Path) -> None:
+    if out.exists() and any(out.iterdir()) and output_kind(out) != RUN_KIND:
+        raise NeoError(f"{out} exists and is not a neo bench folder; choose another --out")
+
+
+def prepare(cfg: BenchConfig) -> tuple[Context, list[Unit], dict[str, str]]:
+    """Check the selection and plan the units, before any work."""
+    if cfg.workers < 1:
+        raise NeoError(f"--workers must be at least 1, got {cfg.workers}")
+    if cfg.workers > 1 and cfg.ray_address:
+        raise NeoError("give --workers N (a local Ray) or --ray ADDRESS (a cluster), not both")
+    specs = suite_specs(cfg.profile, cfg.seed)
+    scenes = list(cfg.scenes) or list(specs)
+    methods = list(cfg.methods) or list(ALL_METHODS)
+    check_selection(scenes, methods, specs)
+    _check_out(cfg.out)
+    ids = _data_ids(cfg, scenes)
+    posts = {s: post_scan_names(len(specs[s].actions)) for s in scenes}
+    units = plan_units(scenes, methods, posts, simulate=cfg.data is None)
+    if not units:
+        raise NeoError("no method of the selection applies to the selected scenes")
+    threads = cfg.threads
+    if threads is None and (cfg.workers > 1 or cfg.ray_address):
+        from neoedit.utils.threads import available_cores
+
+        threads = max(available_cores() // max(cfg.workers, 1), 1)
+    data = None if cfg.data is None else cfg.data.resolve()  # Ray workers have another cwd
+    ctx = Context(cfg.out.resolve(), cfg.profile, cfg.seed, data, threads)
+    return ctx, units, unit_keys(units, cfg.profile, cfg.seed, ids)
+
+
+def run_bench(cfg: BenchConfig) -> dict[str, Any]:
+    """Run (or reuse) every unit of the selection and write the report -> summary."""
+    ctx, units, keys = prepare(cfg)
+    cfg.out.mkdir(parents=True, exist_ok=True)
+    mark_output(cfg.out, RUN_KIND)
+    t0 = time.perf_counter()
+    records: dict[str, dict[str, Any]] = {}
+    todo = []
+    for u in units:
+        rec = cached(ctx, u, keys[u.id])
+        if rec is not None:
+            records[u.id] = rec
+        else:
+            todo.append(u)
+    execute = _ray_executor(cfg) if (cfg.workers > 1 or cfg.ray_address) else _serial
+    with make_progress() as progress:
+        task = progress.add_task("bench units", total=len(units), completed=len(records), status="")
+
+        def done(rec: dict[str, Any]) -> None:
+            records[rec["id"]] = rec
+            outcome = "refused" if rec.get("refused") else "failed"
+            status = f"{rec['id']}: " + (outcome if "error" in rec else f"{rec['seconds']} s")
+            progress.update(task, advance=1, status=status)
+
+        execute(ctx, todo, keys, records, done)
+    summary = {
+        "units": len(units),
+        "ran": len(todo),
+        "cached": len(units) - len(todo),
+        "failed": sorted(i for i, r in records.items() if "error" in r and not r.get("refused")),
+        "refused": sorted(i for i, r in records.items() if r.get("refused")),
+        "seconds": round(time.perf_counter() - t0, 1),
+    }
+    ordered = {u.id: records[u.id] for u in units if u.id in records}
+    write_report(ctx, units, ordered, summary)
+    atomic_write_json(cfg.out / "results.json", {"summary": summary, "units": ordered})
+    return summary
+
+
+Done = Callable[[dict[str, Any]], None]
+
+
+def _blocked(u: Unit, records: dict[str, dict[str, Any]]) -> str | None:
+    """The first dependency of ``u`` that failed or never ran, if any."""
+    return next((d for d in u.deps if d not in records or "error" in records[d]), None)
+
+
+def _skipped(u: Unit, key: str, dep: str, records: dict[str, dict[str, Any]]) -> dict[str, Any]:
+    """The record of a unit whose dependency failed: cached like the dependency (a refusal
+    is an outcome; a crash is retried next run, and so is what needs it)."""
+    refused = bool(records.get(dep, {}).get("refused"))
+    return {
+        "id": u.id,
+        "key": key if refused else None,
+        "error": f"skipped: {dep} failed",
+        "refused": refused,
+        "seconds": 0.0,
+    }
+
+
+def _serial(ctx: Context, todo: list[Unit], keys: dict, records: dict, done: Done) -> None:
+    for u in todo:
+        dep = _blocked(u, records)
+        done(_skipped(u, keys[u.id], dep, records) if dep else run_unit(ctx, u, keys[u.id]))
+
+
+def _ray_executor(cfg: BenchConfig) -> Callable[..., None]:
+    try:
+        import ray
+    except ImportError:
+        raise NeoError(
+            "Ray is not installed: pip install 'neoedit[cluster]' (or run without --workers / --ray)"
+        ) from None
+
+    def execute(ctx: Context, todo: list[Unit], keys: dict, records: dict, done: Done) -> None:
+        started = not ray.is_initialized()
+        if cfg.ray_address:
+            ray.init(address=cfg.ray_address, log_to_driver=False)
+        elif started:
+            ray.init(num_cpus=cfg.workers, include_dashboard=False, log_to_driver=False)
+        try:
+            _ray_loop(ray, ctx, todo, keys, records, done)
+        finally:
+            if started:
+                ray.shutdown()
+
+    return execute
+
+
+def _ray_loop(ray: Any, ctx: Context, todo: list[Unit], keys: dict, records: dict, done: Done):
+    remote = ray.remote(num_cpus=1, max_retries=0)(run_unit)
+    waiting = list(todo)
+    running: dict[Any, Unit] = {}
+    while waiting or running:
+        for u in list(waiting):
+            dep = _blocked(u, records)
+            if dep is not None and dep not in records:
+                continue  # still to run
+            waiting.remove(u)
+            if dep is not None:
+                done(_skipped(u, keys[u.id], dep, records))
+            else:
+                running[remote.remote(ctx, u, keys[u.id])] = u
+        if not running:
+            for u in waiting:  # cannot happen with a plan in dependency order
+                done(_skipped(u, keys[u.id], "a dependency outside the plan", records))
+            return
+        ready, _ = ray.wait(list(running), num_returns=1)
+        for ref in ready:
+            running.pop(ref)
+            done(ray.get(ref))

@@ -1,0 +1,145 @@
+"""Running one unit and caching its result.
+
+Each unit owns the folder ``OUT/units/<unit id>``; its ``unit.json`` (key, result, time),
+written atomically last, is what marks it done. A unit whose ``unit.json`` is missing
+(interrupted) or holds another key (changed inputs or code) is run again from an empty
+folder. Units run the same way in this process and in a Ray worker: :func:`run_unit` is a
+plain function of picklable arguments.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import time
+import traceback
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from neoedit.bench.methods import RUNNERS, SceneInputs
+from neoedit.bench.profiles import BUDGETS, Profile
+from neoedit.bench.units import Unit, suite_specs
+from neoedit.errors import NeoError
+from neoedit.utils.io import atomic_write_json, mark_output, output_kind, write_png
+
+UNIT_FILE = "unit.json"
+UNIT_KIND = "bench-unit"
+
+
+@dataclass(frozen=True)
+class Context:
+    """Where a run reads and writes, and what it spends (picklable for Ray)."""
+
+    out: Path
+    profile: Profile
+    seed: int
+    data: Path | None = None
+    """A reused NEO-Sim suite folder (None: the run simulates its scenes)."""
+    threads: int | None = None
+    """torch / numba threads of each unit (None: the cores the process may use)."""
+    device: str = "auto"
+    """Training device ('auto': CUDA when available)."""
+
+    def unit_dir(self, unit_id: str) -> Path:
+        return self.out / "units" / unit_id
+
+    def scene_data(self, scene: str) -> Path:
+        if self.data is not None:
+            return self.data / scene
+        return self.unit_dir(f"sim/{scene}") / "scene"
+
+    def trained(self, scene: str, scan: str) -> Path:
+        return self.unit_dir(f"train/{scene}/{scan}") / "scene"
+
+
+def cached(ctx: Context, unit: Unit, key: str) -> dict[str, Any] | None:
+    """The unit's record when it finished with this key (else None)."""
+    path = ctx.unit_dir(unit.id) / UNIT_FILE
+    try:
+        record = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    return record if isinstance(record, dict) and record.get("key") == key else None
+
+
+def run_unit(ctx: Context, unit: Unit, key: str) -> dict[str, Any]:
+    """Run ``unit`` from an empty folder, write its record, return it. A unit that refuses
+    with a clear error (:class:`NeoError`: a query that finds nothing, a target outside the
+    scene) is an outcome and is cached; a crash is recorded with its traceback and is not
+    cached: the next run tries again."""
+    from neoedit.utils.threads import configure_threads
+
+    if ctx.threads is not None:  # else the process's own budget (--threads / NEO_THREADS)
+        configure_threads(ctx.threads)
+    _seed_everything(ctx.seed)
+    folder = ctx.unit_dir(unit.id)
+    if folder.exists():  # a stale or interrupted unit of this run folder
+        if output_kind(folder) != UNIT_KIND:
+            raise NeoError(f"{folder} is not a benchmark unit folder; not replacing it")
+        shutil.rmtree(folder)
+    folder.mkdir(parents=True)
+    mark_output(folder, UNIT_KIND)
+    t0 = time.perf_counter()
+    record: dict[str, Any] = {"id": unit.id, "key": key}
+    try:
+        record["result"] = _execute(ctx, unit, folder)
+    except NeoError as e:  # the method refused (e.g. its query found nothing): an outcome
+        record["error"] = f"{type(e).__name__}: {e}"
+        record["refused"] = True
+    except Exception as e:  # noqa: BLE001 - one crashed unit must not stop the others
+        record["error"] = f"{type(e).__name__}: {e}"
+        record["traceback"] = traceback.format_exc(limit=6)
+        record["key"] = None  # not cached: the next run tries again
+    record["seconds"] = round(time.perf_counter() - t0, 1)
+    atomic_write_json(folder / UNIT_FILE, record)
+    return record
+
+
+def _seed_everything(seed: int) -> None:
+    """torch's global generator (every other random draw of neoedit has its own seed)."""
+    import torch
+
+    torch.manual_seed(seed)
+
+
+def _execute(ctx: Context, unit: Unit, folder: Path) -> dict[str, Any]:
+    if unit.kind == "sim":
+        from neoedit.sim.run import simulate_scene  # pybullet: only where it is needed
+
+        spec = suite_specs(ctx.profile, ctx.seed)[unit.scene]
+        summary = simulate_scene(spec, folder / "scene")
+        return {"seconds": round(summary["seconds"], 1)}
+    if unit.kind == "train":
+        return _train(ctx, unit, folder)
+    kind_dir = ctx.scene_data(unit.scene)
+    post_names = [p.name for p in sorted(kind_dir.glob("post*")) if p.is_dir()]
+    inputs = SceneInputs(
+        data=kind_dir,
+        pre=ctx.trained(unit.scene, "pre"),
+        oracles={p: ctx.trained(unit.scene, p) for p in post_names},
+        eval_views=BUDGETS[ctx.profile].eval_views,
+        seed=ctx.seed,
+        query=BUDGETS[ctx.profile].query,
+        edit_scale=BUDGETS[ctx.profile].edit_scale,
+    )
+    row, tile = RUNNERS[unit.kind](unit.params["method"], inputs)
+    write_png(folder / "view.png", tile)
+    return row
+
+
+def _train(ctx: Context, unit: Unit, folder: Path) -> dict[str, Any]:
+    from neoedit.training.trainer import train
+
+    budget = BUDGETS[ctx.profile]
+    scene = train(
+        ctx.scene_data(unit.scene) / unit.params["scan"],
+        folder / "scene",
+        budget.train_config(ctx.seed),
+        budget.radiance,
+        budget.render,
+        budget.grid,
+        device=ctx.device,
+        language=budget.language if unit.params["language"] else None,
+    )
+    return {"train_seconds": round(scene.meta.train_seconds, 1), "steps": scene.meta.step}

@@ -1,0 +1,180 @@
+"""`neo bench`: the units, their cache, the report, and the Ray path."""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import shutil
+from pathlib import Path
+
+import pytest
+
+from neoedit.bench import BenchConfig, run_bench
+from neoedit.bench.methods import ABLATIONS, MOVE_METHODS, REMOVAL_METHODS
+from neoedit.bench.runner import prepare
+from neoedit.bench.units import plan_units, unit_keys
+from neoedit.errors import NeoError
+
+SCENES = ("removal_1", "pick_place_1")
+
+
+def test_plan_has_one_unit_per_applicable_method_and_dependencies_first():
+    posts = {"removal_1": ["post"], "assembly": ["post_1", "post_2", "post_3", "post_4"]}
+    units = plan_units(["removal_1", "assembly"], ["neo", "preview", "oracle"], posts, True)
+    ids = [u.id for u in units]
+    assert "removal_1/neo" in ids and "removal_1/oracle" in ids
+    assert "removal_1/preview" not in ids  # a pick-and-place method only
+    assert "assembly/neo" in ids and "assembly/preview" not in ids
+    assert [i for i in ids if i.startswith("train/assembly/")] == [
+        "train/assembly/pre",
+        *(f"train/assembly/post_{k}" for k in range(1, 5)),
+    ]
+    seen: set[str] = set()
+    for u in units:  # every dependency comes before its unit
+        assert set(u.deps) <= seen, u.id
+        seen.add(u.id)
+    keys = unit_keys(units, "small", 0, {})
+    assert len(set(keys.values())) == len(units)
+    # a changed seed changes every key; a changed dependency changes its dependants'
+    assert set(unit_keys(units, "small", 1, {}).values()).isdisjoint(keys.values())
+    other = unit_keys(units, "small", 0, {"removal_1": "another scene.json"})
+    assert other["removal_1/neo"] != keys["removal_1/neo"]
+    assert other["assembly/neo"] == keys["assembly/neo"]
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"scenes": ("removal_9",)}, "unknown scene"),
+        ({"methods": ("magic",)}, "unknown method"),
+        ({"workers": 0}, "at least 1"),
+        ({"workers": 2, "ray_address": "auto"}, "not both"),
+        ({"scenes": ("removal_1",), "methods": ("preview",)}, "no method"),
+    ],
+)
+def test_bad_selections_are_refused_before_any_work(tmp_path: Path, kwargs, message):
+    with pytest.raises(NeoError, match=message):
+        prepare(BenchConfig(out=tmp_path / "run", **kwargs))
+    assert not (tmp_path / "run").exists()
+
+
+def test_an_unrelated_out_folder_is_refused(tmp_path: Path):
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "notes.txt").write_text("keep me")
+    with pytest.raises(NeoError, match="not a neo bench folder"):
+        prepare(BenchConfig(out=tmp_path / "mine"))
+    assert (tmp_path / "mine" / "notes.txt").read_text() == "keep me"
+
+
+@pytest.fixture(scope="module")
+def small_run(sim_root: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[BenchConfig, dict]:
+    """Every method on one removal and one pick-and-place scene of the small profile, with
+    an explicit thread count per unit (so Ray workers below compute the same floats)."""
+    cfg = BenchConfig(
+        out=tmp_path_factory.mktemp("bench") / "run", data=sim_root, scenes=SCENES, threads=2
+    )
+    return cfg, run_bench(cfg)
+
+
+def _table(report: str, title: str) -> list[list[str]]:
+    """Rows (cells) of the first markdown table after the heading that starts with ``title``."""
+    section = report.split(f"## {title}", 1)[1]
+    rows = re.findall(r"^\| (.+) \|$", section.split("\n\n| paper", 1)[0], re.M)
+    return [r.split(" | ") for r in rows[1:] if not r.startswith("---")]
+
+
+def test_small_bench_fills_every_table_with_finite_numbers(small_run):
+    cfg, summary = small_run
+    assert summary["failed"] == []
+    n_units = 2 + 2 + len(REMOVAL_METHODS) + len(MOVE_METHODS) + len(ABLATIONS)
+    assert summary["units"] == summary["ran"] == n_units
+    report = (cfg.out / "REPORT.md").read_text()
+    for title, methods, regions in (
+        ("Table I", REMOVAL_METHODS, 2),  # Full, Out
+        ("Table II", MOVE_METHODS, 3),  # Out, In, Full
+        ("Table III", ("neo", *ABLATIONS), 2),  # Out, In
+    ):
+        rows = _table(report, title)
+        assert len(rows) == len(methods), title
+        for cells in rows:
+            psnrs = [float(c) for c in cells[2 : 2 + regions]]
+            assert all(math.isfinite(v) and v > 5 for v in psnrs), (title, cells)
+    units = json.loads((cfg.out / "results.json").read_text())["units"]
+    out_psnr = {m: units[f"removal_1/{m}"]["result"]["out"]["psnr"] for m in REMOVAL_METHODS}
+    # real behaviour, not just numbers: inpainting beats leaving the hole, the oracle is best
+    assert out_psnr["neo"] > out_psnr["resample"] + 3
+    assert out_psnr["neo"] > out_psnr["pre-edit"] + 5
+    assert out_psnr["oracle"] == max(out_psnr.values())
+    moved = units["pick_place_1/neo"]["result"]
+    assert moved["out"]["psnr"] > units["pick_place_1/pre-edit"]["result"]["out"]["psnr"] + 3
+    assert (cfg.out / "figures" / "removal_1.png").is_file()
+    assert "figures/pick_place_1.png" in report
+
+
+def test_a_rerun_reuses_every_unit_and_an_interrupted_unit_is_redone(small_run):
+    cfg, first = small_run
+    again = run_bench(cfg)
+    assert again["ran"] == 0 and again["cached"] == first["units"]
+    (cfg.out / "units" / "removal_1" / "resample" / "unit.json").unlink()  # as if killed
+    resumed = run_bench(cfg)
+    assert resumed["ran"] == 1 and resumed["failed"] == []
+
+
+def test_ray_workers_give_the_serial_results(small_run, tmp_path: Path):
+    """Units run by a local Ray of 2 workers (their pre scan cached, as in a resumed run)
+    give the serial run's figures."""
+    pytest.importorskip("ray", reason="Ray is not installed (pip install 'neoedit[cluster]')")
+    cfg, _ = small_run
+    methods = ("pre-edit", "resample", "suppress")
+    shutil.copytree(cfg.out, tmp_path / "ray")
+    for m in methods:
+        (tmp_path / "ray" / "units" / "removal_1" / m / "unit.json").unlink()
+    ray_cfg = BenchConfig(
+        out=tmp_path / "ray",
+        data=cfg.data,
+        scenes=("removal_1",),
+        methods=methods,
+        workers=2,
+        threads=cfg.threads,
+    )
+    summary = run_bench(ray_cfg)
+    assert summary["failed"] == [] and summary["ran"] == len(methods)
+    serial = json.loads((cfg.out / "results.json").read_text())["units"]
+    remote = json.loads((ray_cfg.out / "results.json").read_text())["units"]
+    for m in methods:
+        a, b = serial[f"removal_1/{m}"]["result"], remote[f"removal_1/{m}"]["result"]
+        for region in ("full", "out", "rest"):
+            assert a[region] == b[region], (m, region)
+
+
+def test_a_refusal_is_a_cached_outcome_and_a_crash_is_retried(small_run, tmp_path, monkeypatch):
+    """A method that refuses with a clear error (its query finds nothing) is reported and
+    cached; one that crashes is reported with its traceback and run again next time."""
+    from neoedit.bench import methods, work
+
+    cfg, _ = small_run
+    shutil.copytree(cfg.out, tmp_path / "run")
+    real = methods.RUNNERS["removal"]
+
+    def flaky(method, inputs):
+        if method == "resample":
+            raise NeoError("no object matched 'red mug'")
+        if method == "suppress":
+            raise RuntimeError("out of memory")
+        return real(method, inputs)
+
+    monkeypatch.setitem(work.RUNNERS, "removal", flaky)
+    for m in ("resample", "suppress"):
+        (tmp_path / "run" / "units" / "removal_1" / m / "unit.json").unlink()
+    run = BenchConfig(
+        out=tmp_path / "run", data=cfg.data, scenes=("removal_1",),
+        methods=("resample", "suppress"), threads=cfg.threads,
+    )  # fmt: skip
+    first = run_bench(run)
+    assert first["refused"] == ["removal_1/resample"]
+    assert first["failed"] == ["removal_1/suppress"]
+    report = (tmp_path / "run" / "REPORT.md").read_text()
+    assert "no object matched 'red mug'" in report and "out of memory" in report
+    again = run_bench(run)
+    assert again["ran"] == 1 and again["failed"] == ["removal_1/suppress"]
