@@ -43,6 +43,51 @@ def test_plan_has_one_unit_per_applicable_method_and_dependencies_first():
     assert other["assembly/neo"] == keys["assembly/neo"]
 
 
+def test_keys_change_only_with_what_a_unit_depends_on(monkeypatch):
+    import dataclasses
+
+    from neoedit.bench import units as units_mod
+
+    posts = {"removal_1": ["post"]}
+    plan = plan_units(["removal_1"], ["neo", "oracle"], posts, True)
+    keys = unit_keys(plan, "small", 0, {})
+    small = units_mod.BUDGETS["small"]
+    # an evaluation setting: the method units again, the trainings stay cached
+    monkeypatch.setitem(units_mod.BUDGETS, "small", dataclasses.replace(small, eval_views=2))
+    after = unit_keys(plan, "small", 0, {})
+    assert after["train/removal_1/pre"] == keys["train/removal_1/pre"]
+    assert after["removal_1/neo"] != keys["removal_1/neo"]
+    # a training setting: the trainings and everything after them
+    monkeypatch.setitem(units_mod.BUDGETS, "small", dataclasses.replace(small, train_steps=7))
+    after = unit_keys(plan, "small", 0, {})
+    assert after["sim/removal_1"] == keys["sim/removal_1"]
+    assert after["train/removal_1/post"] != keys["train/removal_1/post"]
+    assert after["removal_1/oracle"] != keys["removal_1/oracle"]
+    # editing code does not invalidate trainings; training code invalidates all but sims
+    assert units_mod.code_version("train") != units_mod.code_version("method")
+
+
+def test_repeated_names_plan_each_unit_once(tmp_path: Path):
+    _, units, _ = prepare(
+        BenchConfig(out=tmp_path / "r", scenes=("removal_1", "removal_1"), methods=("neo", "neo"))
+    )
+    ids = [u.id for u in units]
+    assert len(ids) == len(set(ids)) == 3  # sim, pre, neo
+
+
+def test_a_unit_never_replaces_a_folder_it_did_not_write(tmp_path: Path):
+    from neoedit.bench.units import Unit
+    from neoedit.bench.work import Context, run_unit
+
+    ctx = Context(tmp_path, "small", 0)
+    mine = ctx.unit_dir("removal_1/neo")
+    mine.mkdir(parents=True)
+    (mine / "notes.txt").write_text("keep me")
+    with pytest.raises(NeoError, match="not a benchmark unit folder"):
+        run_unit(ctx, Unit("removal_1/neo", "removal", "removal_1", {"method": "neo"}), "k")
+    assert (mine / "notes.txt").read_text() == "keep me"
+
+
 @pytest.mark.parametrize(
     ("kwargs", "message"),
     [
@@ -100,6 +145,9 @@ def test_small_bench_fills_every_table_with_finite_numbers(small_run):
         for cells in rows:
             psnrs = [float(c) for c in cells[2 : 2 + regions]]
             assert all(math.isfinite(v) and v > 5 for v in psnrs), (title, cells)
+            # SSIM, depth RMSE, E_rep and Rest PSNR: every metric column is filled
+            metrics = [float(c) for c in cells[2 : 2 + 4 * regions + 1]]
+            assert all(math.isfinite(v) for v in metrics), (title, cells)
     units = json.loads((cfg.out / "results.json").read_text())["units"]
     out_psnr = {m: units[f"removal_1/{m}"]["result"]["out"]["psnr"] for m in REMOVAL_METHODS}
     # real behaviour, not just numbers: inpainting beats leaving the hole, the oracle is best
@@ -159,7 +207,7 @@ def test_a_refusal_is_a_cached_outcome_and_a_crash_is_retried(small_run, tmp_pat
 
     def flaky(method, inputs):
         if method == "resample":
-            raise NeoError("no object matched 'red mug'")
+            raise methods.Refusal("no object matched 'red mug'")
         if method == "suppress":
             raise RuntimeError("out of memory")
         return real(method, inputs)
@@ -173,7 +221,7 @@ def test_a_refusal_is_a_cached_outcome_and_a_crash_is_retried(small_run, tmp_pat
     )  # fmt: skip
     first = run_bench(run)
     assert first["refused"] == ["removal_1/resample"]
-    assert first["failed"] == ["removal_1/suppress"]
+    assert first["failed"] == ["removal_1/suppress"]  # any other error, NeoError or not
     report = (tmp_path / "run" / "REPORT.md").read_text()
     assert "no object matched 'red mug'" in report and "out of memory" in report
     again = run_bench(run)

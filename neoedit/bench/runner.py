@@ -9,7 +9,6 @@ different thread count may differ in their last bits).
 
 from __future__ import annotations
 
-import hashlib
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -19,7 +18,14 @@ from typing import Any
 from neoedit.bench.methods import ALL_METHODS
 from neoedit.bench.profiles import Profile
 from neoedit.bench.report import write_report
-from neoedit.bench.units import Unit, check_selection, plan_units, suite_specs, unit_keys
+from neoedit.bench.units import (
+    Unit,
+    check_selection,
+    folder_hash,
+    plan_units,
+    suite_specs,
+    unit_keys,
+)
 from neoedit.bench.work import Context, cached, run_unit
 from neoedit.errors import NeoError
 from neoedit.sim.run import post_scan_names
@@ -52,7 +58,8 @@ class BenchConfig:
 
 
 def _data_ids(cfg: BenchConfig, scenes: list[str]) -> dict[str, str]:
-    """A reused suite's scenes enter the keys by the hash of their scene.json."""
+    """A reused suite's scenes enter the keys by the hash of their files (a re-rendered scan
+    is new data)."""
     if cfg.data is None:
         return {}
     ids = {}
@@ -60,7 +67,7 @@ def _data_ids(cfg: BenchConfig, scenes: list[str]) -> dict[str, str]:
         spec = cfg.data / name / "scene.json"
         if not spec.is_file():
             raise NeoError(f"{cfg.data} has no scene {name} (no {spec}); run neo sim benchmark")
-        ids[name] = hashlib.sha256(spec.read_bytes()).hexdigest()[:16]
+        ids[name] = folder_hash(cfg.data / name)
     return ids
 
 
@@ -76,8 +83,8 @@ def prepare(cfg: BenchConfig) -> tuple[Context, list[Unit], dict[str, str]]:
     if cfg.workers > 1 and cfg.ray_address:
         raise NeoError("give --workers N (a local Ray) or --ray ADDRESS (a cluster), not both")
     specs = suite_specs(cfg.profile, cfg.seed)
-    scenes = list(cfg.scenes) or list(specs)
-    methods = list(cfg.methods) or list(ALL_METHODS)
+    scenes = list(dict.fromkeys(cfg.scenes)) or list(specs)  # a repeated name runs once
+    methods = list(dict.fromkeys(cfg.methods)) or list(ALL_METHODS)
     check_selection(scenes, methods, specs)
     _check_out(cfg.out)
     ids = _data_ids(cfg, scenes)
@@ -120,9 +127,11 @@ def run_bench(cfg: BenchConfig) -> dict[str, Any]:
             progress.update(task, advance=1, status=status)
 
         execute(ctx, todo, keys, records, done)
+    skipped = [i for i, r in records.items() if str(r.get("error", "")).startswith("skipped")]
     summary = {
         "units": len(units),
-        "ran": len(todo),
+        "ran": len(todo) - len(skipped),
+        "skipped": len(skipped),
         "cached": len(units) - len(todo),
         "failed": sorted(i for i, r in records.items() if "error" in r and not r.get("refused")),
         "refused": sorted(i for i, r in records.items() if r.get("refused")),
@@ -149,7 +158,7 @@ def _skipped(u: Unit, key: str, dep: str, records: dict[str, dict[str, Any]]) ->
     return {
         "id": u.id,
         "key": key if refused else None,
-        "error": f"skipped: {dep} failed",
+        "error": f"skipped: {dep} {'could not run' if refused else 'failed'}",
         "refused": refused,
         "seconds": 0.0,
     }
@@ -171,7 +180,7 @@ def _ray_executor(cfg: BenchConfig) -> Callable[..., None]:
 
     def execute(ctx: Context, todo: list[Unit], keys: dict, records: dict, done: Done) -> None:
         started = not ray.is_initialized()
-        if cfg.ray_address:
+        if started and cfg.ray_address:
             ray.init(address=cfg.ray_address, log_to_driver=False)
         elif started:
             ray.init(num_cpus=cfg.workers, include_dashboard=False, log_to_driver=False)
@@ -204,5 +213,8 @@ def _ray_loop(ray: Any, ctx: Context, todo: list[Unit], keys: dict, records: dic
             return
         ready, _ = ray.wait(list(running), num_returns=1)
         for ref in ready:
-            running.pop(ref)
-            done(ray.get(ref))
+            u = running.pop(ref)
+            try:
+                done(ray.get(ref))
+            except Exception as e:  # noqa: BLE001 - a worker died (killed, out of memory)
+                done({"id": u.id, "key": None, "error": f"Ray: {e}", "seconds": 0.0})

@@ -44,19 +44,26 @@ class Unit:
     deps: tuple[str, ...] = ()
 
 
-PRESENTATION = ("cli/", "viewer/", "bench/report.py", "bench/runner.py")
-"""Sources that cannot change a unit's result (the command line, the viewer, the report and
-the scheduling): editing them keeps the cache."""
+PRESENTATION = ("cli/", "viewer/", "grasp/", "bench/report.py", "bench/runner.py")
+"""Sources that cannot change any unit's result (the command line, the viewer, grasping,
+the report and the scheduling): editing them keeps the cache."""
+EDITING = ("edit/", "eval/", "bench/")
+"""Sources that cannot change a simulation or a training: editing an edit method redoes the
+method units, not the trainings."""
+TRAIN_BUDGET = ("train_steps", "rays_per_batch", "radiance", "render", "grid", "language")
+"""The part of a profile's budget that a training depends on."""
 
 
 @functools.cache
-def code_version() -> str:
-    """A hash of the neoedit sources a unit's result can depend on (path and content)."""
+def code_version(scope: str = "method") -> str:
+    """A hash of the neoedit sources (path and content) that a unit of ``scope`` ('sim' /
+    'train', or 'method') can depend on."""
+    skip = PRESENTATION + (EDITING if scope in ("sim", "train") else ())
     h = hashlib.sha256()
     root = Path(neoedit.__file__).parent
     for path in sorted(root.rglob("*.py")):
         rel = path.relative_to(root).as_posix()
-        if rel.startswith(PRESENTATION):
+        if rel.startswith(skip):
             continue
         h.update(rel.encode())
         h.update(path.read_bytes())
@@ -64,23 +71,38 @@ def code_version() -> str:
 
 
 def unit_keys(units: list[Unit], profile: Profile, seed: int, data_ids: dict[str, str]) -> dict:
-    """Cache key of every unit (units come in dependency order). ``data_ids``: scene ->
-    a hash of its reused suite folder's scene.json (empty for generated scenes)."""
+    """Cache key of every unit (units come in dependency order). ``data_ids``: scene -> a
+    hash of its reused suite folder's files (none for simulated scenes: their sim unit's
+    key stands for them)."""
     keys: dict[str, str] = {}
     budget = BUDGETS[profile].to_dict()
+    train_budget = {k: budget[k] for k in TRAIN_BUDGET}
     for u in units:
+        scope = u.kind if u.kind in ("sim", "train") else "method"
         payload = {
             "id": u.id,
             "params": u.params,
-            "budget": budget,
+            "budget": {} if scope == "sim" else train_budget if scope == "train" else budget,
+            "profile": profile if scope == "sim" else None,
             "seed": seed,
             "data": data_ids.get(u.scene, ""),
             "deps": [keys[d] for d in u.deps],
-            "code": code_version(),
+            "code": code_version(scope),
         }
         blob = json.dumps(payload, sort_keys=True, default=str).encode()
         keys[u.id] = hashlib.sha256(blob).hexdigest()[:20]
     return keys
+
+
+def folder_hash(folder: Path) -> str:
+    """A hash of every file under ``folder`` (relative path and content)."""
+    h = hashlib.sha256()
+    for path in sorted(p for p in folder.rglob("*") if p.is_file()):
+        h.update(path.relative_to(folder).as_posix().encode())
+        with path.open("rb") as f:
+            for block in iter(lambda: f.read(1 << 20), b""):
+                h.update(block)
+    return h.hexdigest()[:16]
 
 
 def suite_specs(profile: Profile, seed: int) -> dict[str, SceneSpec]:
@@ -130,7 +152,8 @@ def plan_units(
             units.append(Unit(sim, "sim", name))
         base = (sim,) if simulate else ()
         pre = Unit(f"train/{name}/pre", "train", name, {"scan": "pre", "language": True}, base)
-        units.append(pre)
+        if any(m != "oracle" for m in chosen):
+            units.append(pre)
         oracles = []
         if "oracle" in chosen:
             for scan in post_scans[name]:

@@ -10,6 +10,7 @@ plain function of picklable arguments.
 from __future__ import annotations
 
 import json
+import platform
 import shutil
 import time
 import traceback
@@ -17,9 +18,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from neoedit.bench.methods import RUNNERS, SceneInputs
+from neoedit.bench.methods import RUNNERS, Refusal, SceneInputs
 from neoedit.bench.profiles import BUDGETS, Profile
-from neoedit.bench.units import Unit, suite_specs
+from neoedit.bench.units import Unit, code_version, suite_specs
 from neoedit.errors import NeoError
 from neoedit.utils.io import atomic_write_json, mark_output, output_kind, write_png
 
@@ -64,9 +65,10 @@ def cached(ctx: Context, unit: Unit, key: str) -> dict[str, Any] | None:
 
 
 def run_unit(ctx: Context, unit: Unit, key: str) -> dict[str, Any]:
-    """Run ``unit`` from an empty folder, write its record, return it. A unit that refuses
-    with a clear error (:class:`NeoError`: a query that finds nothing, a target outside the
-    scene) is an outcome and is cached; a crash is recorded with its traceback and is not
+    """Run ``unit`` from an empty folder, write its record, return it. A method that cannot
+    run on its scene (:class:`~neoedit.bench.methods.Refusal`: the query finds nothing, the
+    found box moved by the action leaves the scene) is an outcome and is cached; any other
+    error (a missing package or weights, a crash) is recorded with its traceback and not
     cached: the next run tries again."""
     from neoedit.utils.threads import configure_threads
 
@@ -84,7 +86,7 @@ def run_unit(ctx: Context, unit: Unit, key: str) -> dict[str, Any]:
     record: dict[str, Any] = {"id": unit.id, "key": key}
     try:
         record["result"] = _execute(ctx, unit, folder)
-    except NeoError as e:  # the method refused (e.g. its query found nothing): an outcome
+    except Refusal as e:  # the method could not run (its query found nothing): an outcome
         record["error"] = f"{type(e).__name__}: {e}"
         record["refused"] = True
     except Exception as e:  # noqa: BLE001 - one crashed unit must not stop the others
@@ -92,8 +94,15 @@ def run_unit(ctx: Context, unit: Unit, key: str) -> dict[str, Any]:
         record["traceback"] = traceback.format_exc(limit=6)
         record["key"] = None  # not cached: the next run tries again
     record["seconds"] = round(time.perf_counter() - t0, 1)
+    record["ran_on"] = {"host": platform.node(), "threads": _threads(), "code": code_version()}
     atomic_write_json(folder / UNIT_FILE, record)
     return record
+
+
+def _threads() -> int:
+    import torch
+
+    return torch.get_num_threads()
 
 
 def _seed_everything(seed: int) -> None:

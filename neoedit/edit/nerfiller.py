@@ -215,13 +215,13 @@ class MaskedViews:
     rgb: list[np.ndarray]
     """The scan's photo in the window (the context outside the mask)."""
     depth: list[np.ndarray] | None = None
-    """The scan's depth in the window, inpainted inside the mask (depth variant)."""
+    """The scan's depth in the window, filled inside the mask (the depth variant's target;
+    both variants' opacity of the filled pixels)."""
 
 
-def masked_views(
-    data: SceneData, boxes: list[OrientedBox], margin_px: int, depth: bool
-) -> MaskedViews:
-    """The training views whose pixels see the boxes: masks, crops (and inpainted depth)."""
+def masked_views(data: SceneData, boxes: list[OrientedBox], margin_px: int) -> MaskedViews:
+    """The training views whose pixels see the boxes: masks, crops (and, where the scan
+    has depth, its depth filled inside the masks)."""
     train = data.split["train"]
     full = [masks_for_boxes(data.cameras, int(i), boxes) for i in train]
     rows = [t for t, m in enumerate(full) if m.any()]
@@ -232,7 +232,7 @@ def masked_views(
     masks = [full[t][w] for t, w in zip(rows, windows, strict=True)]
     rgb = [data.images[f][w] for f, w in zip(frames, windows, strict=True)]
     views = MaskedViews(rows, frames, windows, masks, rgb)
-    if depth and data.depth_m is not None:
+    if data.depth_m is not None:  # also decides the opacity of the filled pixels
         views.depth = [
             inpaint_depth(data.depth_m[f][w], m)
             for f, w, m in zip(frames, windows, masks, strict=True)
@@ -241,19 +241,27 @@ def masked_views(
 
 
 def _inpainted_data(
-    data: SceneData, views: MaskedViews, inpainter: Inpainter, xi: float
+    data: SceneData, views: MaskedViews, inpainter: Inpainter, xi: float, depth: bool
 ) -> SceneData:
-    """A copy of ``data`` whose masked training views are inpainted (round 0)."""
+    """A copy of ``data`` whose masked training views are inpainted (round 0). Where the
+    data has opacity (RGBA scans), a filled pixel is opaque where the filled depth finds a
+    surface and empty where it does not (the object no longer hides empty space)."""
     images = data.images.copy()
     filled = inpaint_views(inpainter, views.rgb, views.masks, xi, grid=True)
     for f, w, crop in zip(views.frames, views.windows, filled, strict=True):
         images[f][w] = crop
-    depth_m = None
-    if views.depth is not None and data.depth_m is not None:
+    depth_m = alpha = None
+    if views.depth is not None and data.depth_m is not None and depth:
         depth_m = data.depth_m.copy()
         for f, w, crop in zip(views.frames, views.windows, views.depth, strict=True):
             depth_m[f][w] = crop
-    return dataclasses.replace(data, images=images, depth_m=depth_m)
+    if views.depth is not None and data.alpha is not None:
+        alpha = data.alpha.copy()
+        for f, w, m, d in zip(views.frames, views.windows, views.masks, views.depth, strict=True):
+            alpha[f][w] = np.where(m, np.where(d > 0, 255, 0), alpha[f][w]).astype(np.uint8)
+    return dataclasses.replace(
+        data, images=images, depth_m=depth_m, alpha=data.alpha if alpha is None else alpha
+    )
 
 
 def _retrain(
@@ -272,8 +280,8 @@ def _retrain(
         cfg.strength + (cfg.strength_final - cfg.strength) * k / max(rounds - 1, 1)
         for k in range(rounds)
     ]
-    views = masked_views(data, boxes, cfg.crop_margin_px, cfg.depth)
-    inpainted = _inpainted_data(data, views, inpainter, xis[0])
+    views = masked_views(data, boxes, cfg.crop_margin_px)
+    inpainted = _inpainted_data(data, views, inpainter, xis[0], cfg.depth)
     timings = {"inpaint_s": time.perf_counter() - t, "render_s": 0.0}
     trainer = Trainer(inpainted, child, train_cfg, None, child.field.aabb.device)
     update_at = {round(k * steps / rounds): k for k in range(1, rounds)}
