@@ -20,7 +20,8 @@ $(STAMP): pyproject.toml
 # The end-to-end demo on embedded defaults: simulate, train (field + language), render,
 # evaluate, find the mug by name, remove it (a new version) and score that against the
 # post-removal scan, move it (preview and full), then run a 3-step plan into a scene store
-# (log, diff, undo) and plan grasps of the mug on the store's current version.
+# (log, diff, undo), plan grasps of the mug on the store's current version, and regenerate
+# Table I's rows for one small NEO-Sim scene with neo bench.
 demo: $(STAMP)
 	$(VENV)/bin/neo sim scene examples/demo_scene.yaml --out $(DEMO_OUT)/sim --overwrite
 	rm -rf $(DEMO_OUT)/scene $(DEMO_OUT)/render $(DEMO_OUT)/eval_images $(DEMO_OUT)/query $(DEMO_OUT)/no_mug $(DEMO_OUT)/mug_preview $(DEMO_OUT)/mug_moved $(DEMO_OUT)/moved_render $(DEMO_OUT)/plan $(DEMO_OUT)/plan_diff $(DEMO_OUT)/grasp
@@ -39,6 +40,7 @@ demo: $(STAMP)
 	$(VENV)/bin/neo diff $(DEMO_OUT)/plan step_0 step_3 --out $(DEMO_OUT)/plan_diff
 	$(VENV)/bin/neo restore $(DEMO_OUT)/plan step_2
 	$(VENV)/bin/neo grasp $(DEMO_OUT)/plan "mug" --json $(DEMO_OUT)/grasps.json --out $(DEMO_OUT)/grasp --overwrite
+	$(VENV)/bin/neo bench --profile small --scenes removal_1 --methods pre-edit resample neo oracle --out $(DEMO_OUT)/bench
 	@echo "contact sheets:  $(DEMO_OUT)/sim/*/contact_sheet.png"
 	@echo "spiral video:    $(DEMO_OUT)/render/video.gif"
 	@echo "held-out views (render | ground truth): $(DEMO_OUT)/eval_images/"
@@ -48,6 +50,7 @@ demo: $(STAMP)
 	@echo "moved mug found by name:       $(DEMO_OUT)/mug_moved_query.json; spiral video: $(DEMO_OUT)/moved_render/video.gif"
 	@echo "a 3-step plan (scene store):   $(DEMO_OUT)/plan/plan.png, diff step_0 vs step_3: $(DEMO_OUT)/plan_diff/diff.png (current: step_2)"
 	@echo "grasps of the nudged mug:      $(DEMO_OUT)/grasp/grasps.png, $(DEMO_OUT)/grasps.json"
+	@echo "Table I on one scene (neo bench, cached on re-runs): $(DEMO_OUT)/bench/REPORT.md"
 
 test: $(STAMP)
 	@# headless Chromium for the browser check of neo view (skipped with a message without it)

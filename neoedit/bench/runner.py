@@ -116,7 +116,8 @@ def run_bench(cfg: BenchConfig) -> dict[str, Any]:
             records[u.id] = rec
         else:
             todo.append(u)
-    execute = _ray_executor(cfg) if (cfg.workers > 1 or cfg.ray_address) else _serial
+    ray_wanted = (cfg.workers > 1 or cfg.ray_address) and todo  # nothing to run: no cluster
+    execute = _ray_executor(cfg) if ray_wanted else _serial
     with make_progress() as progress:
         task = progress.add_task("bench units", total=len(units), completed=len(records), status="")
 
