@@ -176,34 +176,38 @@ def _removed(
 
 def run_removal(method: str, inp: SceneInputs) -> tuple[dict[str, Any], np.ndarray]:
     """One removal method on one scene -> (metrics row, figure tile)."""
-    action = json.loads((inp.data / "scene.json").read_text())["actions"][0]
-    truth = OrientedBox.from_dict(action["source_box"])
-    post = load_scene_data(inp.data / "post")
-    row: dict[str, Any] = {"object": action["object"]}
-    if method == "oracle":
-        scene = load_scene(inp.oracles["post"])
-        row["seconds"] = round(scene.meta.train_seconds, 1)
-    else:
-        pre = load_scene(_need(inp.pre))
-        if method == "pre-edit":
-            scene, row["seconds"] = pre, None
-        else:
-            box = found_box(pre, action["object"], inp.query)
-            row["query_iou"] = round(box_iou_3d(box, truth), 3)
-            # the scan's images (NeRFiller-style retraining) are read before the clock starts
-            scan = load_scene_data(inp.data / "pre") if method.startswith("nerfiller") else None
-            t0 = time.perf_counter()
-            scene = _removed(method, pre, box, inp, action["object"], scan)
-            row["seconds"] = round(time.perf_counter() - t0, 1)
-    row.update(evaluate(scene, post, "test", out_boxes=[truth], max_views=inp.eval_views))
-    return row, render_view(scene, post)
+
+    def edit(pre: Scene, box: OrientedBox, action: dict) -> Callable[[], Scene]:
+        # the scan's images (NeRFiller-style retraining) are read before the clock starts
+        scan = load_scene_data(inp.data / "pre") if method.startswith("nerfiller") else None
+        return lambda: _removed(method, pre, box, inp, action["object"], scan)
+
+    return _run_action(method, inp, edit, moved=False)
 
 
 def run_move(method: str, inp: SceneInputs) -> tuple[dict[str, Any], np.ndarray]:
     """One pick-and-place method (or ablation) on one scene -> (metrics row, figure tile)."""
+
+    def edit(pre: Scene, box: OrientedBox, action: dict) -> Callable[[], Scene]:
+        motion = checked_motion(pre, box, action["transform_world"])
+        return lambda: move(pre, [motion], move_config(method, inp.edit_scale), action["object"])
+
+    return _run_action(method, inp, edit, moved=True)
+
+
+Edit = Callable[[Scene, OrientedBox, dict], Callable[[], Scene]]
+"""(pre scene, found box, action) -> the timed edit (what it needs is prepared untimed)."""
+
+
+def _run_action(
+    method: str, inp: SceneInputs, edit: Edit, moved: bool
+) -> tuple[dict[str, Any], np.ndarray]:
+    """The scene's one action by ``method``: the pre scene as it is ('pre-edit'), the
+    oracle, or ``edit`` of the box found for the object's name; evaluated on the post scan
+    over Out (the true source box), In (the true target box, when ``moved``) and the rest."""
     action = json.loads((inp.data / "scene.json").read_text())["actions"][0]
     source = OrientedBox.from_dict(action["source_box"])
-    target = OrientedBox.from_dict(action["target_box"])
+    targets = [OrientedBox.from_dict(action["target_box"])] if moved else []
     post = load_scene_data(inp.data / "post")
     row: dict[str, Any] = {"object": action["object"]}
     if method == "oracle":
@@ -216,11 +220,11 @@ def run_move(method: str, inp: SceneInputs) -> tuple[dict[str, Any], np.ndarray]
         else:
             box = found_box(pre, action["object"], inp.query)
             row["query_iou"] = round(box_iou_3d(box, source), 3)
-            motion = checked_motion(pre, box, action["transform_world"])
+            timed = edit(pre, box, action)
             t0 = time.perf_counter()
-            scene = move(pre, [motion], move_config(method, inp.edit_scale), action["object"])
+            scene = timed()
             row["seconds"] = round(time.perf_counter() - t0, 1)
-    row.update(evaluate(scene, post, "test", [source], [target], max_views=inp.eval_views))
+    row.update(evaluate(scene, post, "test", [source], targets, max_views=inp.eval_views))
     return row, render_view(scene, post)
 
 

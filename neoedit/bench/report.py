@@ -79,7 +79,7 @@ def metric_table(
         ious = [r["query_iou"] for r in rows if "query_iou" in r]
         cells.append(_fmt(float(np.mean(ious)) if ious else None, 2))
         lines.append("| " + " | ".join(cells) + " |")
-    return lines
+    return lines if len(lines) > 2 else ["*(no scene of this table was in the run)*"]
 
 
 def paper_table(table: dict, regions: tuple[str, str]) -> list[str]:
@@ -87,7 +87,9 @@ def paper_table(table: dict, regions: tuple[str, str]) -> list[str]:
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for name, values in table.items():
         digits = [d for _, d in METRICS]
-        cells = [name] + [f"{v:.{min(d, 3)}f}" for pair, d in zip(values, digits, strict=True) for v in pair]
+        cells = [name] + [
+            f"{v:.{min(d, 3)}f}" for pair, d in zip(values, digits, strict=True) for v in pair
+        ]
         lines.append("| " + " | ".join(cells) + " |")
     return lines
 
