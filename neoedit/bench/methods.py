@@ -232,7 +232,7 @@ def run_assembly(method: str, inp: SceneInputs) -> tuple[dict[str, Any], np.ndar
     """The four moves of the assembly, each from the previous version (oracle: each post
     scan's own field) -> ({"steps": rows}, a tile per step side by side)."""
     actions = json.loads((inp.data / "scene.json").read_text())["actions"]
-    scene = load_scene(_need(inp.pre)) if method != "oracle" else None
+    chain = None if method == "oracle" else load_scene(_need(inp.pre))
     rows: list[dict[str, Any]] = []
     tiles = []
     for k, action in enumerate(actions, 1):
@@ -240,21 +240,21 @@ def run_assembly(method: str, inp: SceneInputs) -> tuple[dict[str, Any], np.ndar
         source = OrientedBox.from_dict(action["source_box"])
         target = OrientedBox.from_dict(action["target_box"])
         row: dict[str, Any] = {"step": k, "object": action["object"]}
-        if method == "oracle":
+        if chain is None:
             current = load_scene(inp.oracles[f"post_{k}"])
             row["seconds"] = round(current.meta.train_seconds, 1)
-        elif scene is not None:
+        else:
             try:
-                box = found_box(scene, action["object"], inp.query)
-            except NeoError as e:  # the chain cannot go on without its object
+                box = found_box(chain, action["object"], inp.query)
+                motion = checked_motion(chain, box, action["transform_world"])
+            except Refusal as e:  # the chain cannot go on; the steps so far are kept
                 rows.append({**row, "error": str(e)})
                 break
             row["query_iou"] = round(box_iou_3d(box, source), 3)
-            motion = checked_motion(scene, box, action["transform_world"])
             t0 = time.perf_counter()
-            scene = move(scene, [motion], move_config(method, inp.edit_scale), action["object"])
+            chain = move(chain, [motion], move_config(method, inp.edit_scale), action["object"])
             row["seconds"] = round(time.perf_counter() - t0, 1)
-            current = scene
+            current = chain
         row.update(evaluate(current, post, "test", [source], [target], max_views=inp.eval_views))
         rows.append(row)
         tiles.append(render_view(current, post))

@@ -152,13 +152,12 @@ def _blocked(u: Unit, records: dict[str, dict[str, Any]]) -> str | None:
     return next((d for d in u.deps if d not in records or "error" in records[d]), None)
 
 
-def _skipped(u: Unit, key: str, dep: str, records: dict[str, dict[str, Any]]) -> dict[str, Any]:
-    """The record of a unit whose dependency failed: cached like the dependency (a refusal
-    is an outcome; a crash is retried next run, and so is what needs it)."""
+def _skipped(u: Unit, dep: str, records: dict[str, dict[str, Any]]) -> dict[str, Any]:
+    """The record of a unit whose dependency could not run or failed (not written: the next
+    run decides again from the dependency's own record)."""
     refused = bool(records.get(dep, {}).get("refused"))
     return {
         "id": u.id,
-        "key": key if refused else None,
         "error": f"skipped: {dep} {'could not run' if refused else 'failed'}",
         "refused": refused,
         "seconds": 0.0,
@@ -168,7 +167,7 @@ def _skipped(u: Unit, key: str, dep: str, records: dict[str, dict[str, Any]]) ->
 def _serial(ctx: Context, todo: list[Unit], keys: dict, records: dict, done: Done) -> None:
     for u in todo:
         dep = _blocked(u, records)
-        done(_skipped(u, keys[u.id], dep, records) if dep else run_unit(ctx, u, keys[u.id]))
+        done(_skipped(u, dep, records) if dep else run_unit(ctx, u, keys[u.id]))
 
 
 def _ray_executor(cfg: BenchConfig) -> Callable[..., None]:
@@ -205,12 +204,12 @@ def _ray_loop(ray: Any, ctx: Context, todo: list[Unit], keys: dict, records: dic
                 continue  # still to run
             waiting.remove(u)
             if dep is not None:
-                done(_skipped(u, keys[u.id], dep, records))
+                done(_skipped(u, dep, records))
             else:
                 running[remote.remote(ctx, u, keys[u.id])] = u
         if not running:
             for u in waiting:  # cannot happen with a plan in dependency order
-                done(_skipped(u, keys[u.id], "a dependency outside the plan", records))
+                done(_skipped(u, "a dependency outside the plan", records))
             return
         ready, _ = ray.wait(list(running), num_returns=1)
         for ref in ready:
