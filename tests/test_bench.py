@@ -76,6 +76,20 @@ def test_repeated_names_plan_each_unit_once(tmp_path: Path):
     assert len(ids) == len(set(ids)) == 3  # sim, pre, neo
 
 
+def test_the_users_thread_count_reaches_the_ray_workers(tmp_path: Path, monkeypatch):
+    from neoedit.utils import threads
+
+    monkeypatch.setattr(threads, "_CHOSEN", [])
+    monkeypatch.delenv(threads.ENV_VAR, raising=False)
+    cfg = BenchConfig(out=tmp_path / "r", scenes=("removal_1",), methods=("neo",), workers=2)
+    assert prepare(cfg)[0].threads == max(threads.available_cores() // 2, 1)  # a share each
+    monkeypatch.setenv(threads.ENV_VAR, "3")
+    assert prepare(cfg)[0].threads == 3
+    monkeypatch.setattr(threads, "_CHOSEN", [1])  # neo --threads 1 bench ... wins
+    assert prepare(cfg)[0].threads == 1
+    assert prepare(BenchConfig(out=tmp_path / "r", workers=2, threads=2))[0].threads == 2
+
+
 def test_a_unit_never_replaces_a_folder_it_did_not_write(tmp_path: Path):
     from neoedit.bench.units import Unit
     from neoedit.bench.work import Context, run_unit

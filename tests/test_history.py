@@ -32,6 +32,9 @@ from neoedit.storage.blobs import decode, encode
 PLAN_FAST = [a.replace("--edit.", "--edit.move.") for a in FAST] + [
     "--edit.remove.refine.steps", "30", "--edit.remove.refine.rounds", "1",
     "--edit.remove.views.turns", "1",
+    # half the distillation: the chain checks versions and records, not the student's
+    # fidelity to its teacher (test_move.py does, with the full schedule)
+    "--edit.move.distill.field-steps", "20", "--edit.move.distill.render-steps", "40",
 ]  # fmt: skip
 
 
@@ -194,6 +197,26 @@ def test_restore_is_bit_identical_and_keeps_later_versions(chain: Path, sim_root
     assert (diff / "diff.png").is_file()
     psnr = json.loads((diff / "diff.json").read_text())["views"][0]["psnr_a_vs_b"]
     assert 10 < psnr < 60  # the two versions differ where the mug moved, and only there
+
+
+def test_versions_keep_their_write_order_when_the_store_is_copied(tmp_path: Path):
+    import os
+    import shutil
+
+    store = SceneStore.create(tmp_path / "store")
+    parent = None
+    for k, name in enumerate(["zeta", "alpha", "mid"]):  # not alphabetical
+        groups = {"field": {"w": torch.full((4,), float(k))}}
+        store.write(name, groups, {"version_id": name * 2, "parent": parent})
+        parent = name * 2
+    assert store.names() == ["zeta", "alpha", "mid"]
+    copy = tmp_path / "copy"  # cp -r: every file gets a new time, here in reverse order
+    shutil.copytree(store.root, copy, copy_function=shutil.copy)
+    for t, name in enumerate(["mid", "alpha", "zeta"]):
+        os.utime(copy / name, ns=(10**18 + t, 10**18 + t))
+    moved = SceneStore(copy)
+    assert moved.names() == ["zeta", "alpha", "mid"]
+    assert float(moved.tensors("mid")["field"]["w"][0]) == 2.0
 
 
 def test_a_killed_write_leaves_the_store_valid(chain: Path, tmp_path: Path):

@@ -53,8 +53,8 @@ class BenchConfig:
     ray_address: str | None = None
     """Join this Ray cluster (e.g. 'auto' or 'ray://host:10001') instead."""
     threads: int | None = None
-    """torch / numba threads per unit (default: the cores of the process; with Ray, the
-    cores divided by the workers)."""
+    """torch / numba threads per unit (default: ``--threads`` / ``NEO_THREADS`` when given,
+    else the cores of the process; with Ray, the cores divided by the workers)."""
 
 
 def _data_ids(cfg: BenchConfig, scenes: list[str]) -> dict[str, str]:
@@ -92,10 +92,12 @@ def prepare(cfg: BenchConfig) -> tuple[Context, list[Unit], dict[str, str]]:
     units = plan_units(scenes, methods, posts, simulate=cfg.data is None)
     if not units:
         raise NeoError("no method of the selection applies to the selected scenes")
-    threads = cfg.threads
-    if threads is None and (cfg.workers > 1 or cfg.ray_address):
-        from neoedit.utils.threads import available_cores
+    from neoedit.utils.threads import available_cores, chosen_threads
 
+    # the user's --threads / NEO_THREADS reaches the Ray workers too (their processes do
+    # not inherit this one's budget); by default each gets its share of the cores
+    threads = cfg.threads if cfg.threads is not None else chosen_threads()
+    if threads is None and (cfg.workers > 1 or cfg.ray_address):
         threads = max(available_cores() // max(cfg.workers, 1), 1)
     data = None if cfg.data is None else cfg.data.resolve()  # Ray workers have another cwd
     ctx = Context(cfg.out.resolve(), cfg.profile, cfg.seed, data, threads)

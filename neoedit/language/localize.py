@@ -23,6 +23,7 @@ from sklearn.cluster import DBSCAN
 from neoedit.cameras.cameras import Cameras
 from neoedit.errors import NeoError
 from neoedit.geometry.box import OrientedBox
+from neoedit.geometry.plane import fit_plane
 from neoedit.language.relevancy import CANONICAL_PHRASES, relevancy
 from neoedit.language.text import TextEncoder
 from neoedit.scene import Scene
@@ -79,27 +80,16 @@ class QueryResult:
 def dominant_plane(
     points_m: np.ndarray, inlier_m: float = 0.005, iterations: int = 256, seed: int = 0
 ) -> tuple[np.ndarray, np.ndarray, float] | None:
-    """RANSAC plane of the most points (at most 20000 drawn): (unit normal (3,), a point on
-    it (3,), inlier fraction), or None for fewer than 50 points or only degenerate triples.
-    The normal's sign is arbitrary."""
+    """The plane of the most points (:func:`~neoedit.geometry.plane.fit_plane`: RANSAC over
+    at most 20000 points, refitted to its inliers): (unit normal (3,), a point on it (3,),
+    inlier fraction), or None for fewer than 50 points or only degenerate triples. The
+    normal's sign is arbitrary."""
     if len(points_m) < 50:
         return None
-    rng = np.random.default_rng(seed)
-    pts = points_m[rng.choice(len(points_m), min(len(points_m), 20000), replace=False)]
-    best_n, best_a, best_count = None, None, 0
-    for _ in range(iterations):
-        a, b, c = pts[rng.choice(len(pts), 3, replace=False)]
-        n = np.cross(b - a, c - a)
-        norm = np.linalg.norm(n)
-        if norm < 1e-9:
-            continue
-        n = n / norm
-        count = int((np.abs((pts - a) @ n) < inlier_m).sum())
-        if count > best_count:
-            best_n, best_a, best_count = n, a, count
-    if best_n is None or best_a is None:
+    plane = fit_plane(points_m, inlier_m, iterations, seed)
+    if plane is None:
         return None
-    return best_n, best_a, best_count / len(pts)
+    return plane.normal, plane.normal * plane.offset, float(plane.inliers.mean())
 
 
 def camera_up(cameras: Cameras) -> np.ndarray:

@@ -109,14 +109,16 @@ class SceneStore:
         return self.root / name
 
     def names(self) -> list[str]:
-        """Version names, oldest first."""
+        """Version names, oldest first: in the order they were written (each manifest holds
+        its number, so a copied store whose files got new times keeps its order; versions of
+        stores written before numbering come first, by modification time)."""
         found = []
         for d in self.root.iterdir():  # a writer's temporary folder (".NAME.neoedit-...") is none
             if not NAME_RE.match(d.name) or d.name == "blobs":
                 continue
             if d.is_dir() and (d / MANIFEST).is_file() and (d / "scene.json").is_file():
-                found.append((d.stat().st_mtime_ns, d.name))
-        return [n for _, n in sorted(found)]
+                found.append((_number(d / MANIFEST), d.stat().st_mtime_ns, d.name))
+        return [n for *_, n in sorted(found)]
 
     def info(self, name: str) -> VersionInfo:
         if not isinstance(name, str) or not NAME_RE.match(name) or name == "blobs":
@@ -245,7 +247,11 @@ class SceneStore:
                 raise NeoError(f"{self.root / name} already exists: versions are never replaced")
             parent_name = self.name_of_id(meta.get("parent"))
             parent = self.tensors(parent_name) if parent_name is not None else None
-            manifest: dict[str, Any] = {"format": MANIFEST_FORMAT, "parent": parent_name}
+            manifest: dict[str, Any] = {
+                "format": MANIFEST_FORMAT,
+                "parent": parent_name,
+                "number": len(self.names()),
+            }
             manifest["groups"], stored, size = {}, {}, 0
             for gname, tensors in groups.items():
                 payload, entries, stored[gname] = encode(
@@ -269,3 +275,13 @@ class SceneStore:
     def size_bytes(self) -> int:
         """Bytes on disk of the whole store (blobs, manifests, metadata, reports)."""
         return sum(p.stat().st_size for p in self.root.rglob("*") if p.is_file())
+
+
+def _number(manifest: Path) -> int:
+    """A version's number in its store's write order (-1: written before numbering, or a
+    manifest that cannot be read, which :meth:`SceneStore.info` reports)."""
+    try:
+        number = json.loads(manifest.read_text()).get("number", -1)
+    except (OSError, ValueError, AttributeError):
+        return -1
+    return number if isinstance(number, int) else -1

@@ -66,6 +66,8 @@ def _positive(text: str, source: str) -> int:
 
 _BUDGET: list[int] = []
 """The budget :func:`configure_threads` set (empty: none set)."""
+_CHOSEN: list[int] = []
+"""The count given to :func:`configure_threads` explicitly (``--threads``; empty: none)."""
 
 
 def configure_threads(requested: int | None = None) -> int:
@@ -76,8 +78,18 @@ def configure_threads(requested: int | None = None) -> int:
     n = resolve_threads(requested)
     torch.set_num_threads(n)
     _BUDGET[:] = [n]
+    _CHOSEN[:] = [] if requested is None else [n]
     apply_thread_budget()
     return n
+
+
+def chosen_threads(environ: MutableMapping[str, str] = os.environ) -> int | None:
+    """The thread count the user chose (``--threads`` of this process, else
+    ``$NEO_THREADS``), or None when neither was given: what a process handing work to
+    other processes (``neo bench``'s Ray workers) passes on to them."""
+    if _CHOSEN:
+        return _CHOSEN[0]
+    return resolve_threads(None, environ) if environ.get(ENV_VAR, "").strip() else None
 
 
 def apply_thread_budget() -> None:
