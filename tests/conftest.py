@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import os
 import string
 from pathlib import Path
 
@@ -17,9 +18,14 @@ from neoedit.sim.spec import ScanSpec
 from neoedit.sim.suite import benchmark_scenes
 from neoedit.training.trainer import TrainConfig, train
 
+# messages are checked as printed: rich wraps them at the terminal width (80 columns when
+# there is no terminal), so a long temporary path would break a line inside a checked phrase
+os.environ["COLUMNS"] = "250"
+
 # property tests draw the same examples on every run (CI must not fail by chance)
 settings.register_profile("deterministic", derandomize=True, database=None, deadline=None)
 settings.load_profile("deterministic")
+
 
 TINY_SCAN = ScanSpec(width=64, height=48, n_train=10, n_eval=3)
 TINY_FIELD = RadianceFieldConfig(
