@@ -130,7 +130,7 @@ def run_bench(cfg: BenchConfig) -> dict[str, Any]:
             progress.update(task, advance=1, status=status)
 
         execute(ctx, todo, keys, records, done)
-    skipped = [i for i, r in records.items() if str(r.get("error", "")).startswith("skipped")]
+    skipped = [i for i, r in records.items() if r.get("skipped")]
     summary = {
         "units": len(units),
         "ran": len(todo) - len(skipped),
@@ -162,6 +162,7 @@ def _skipped(u: Unit, dep: str, records: dict[str, dict[str, Any]]) -> dict[str,
         "id": u.id,
         "error": f"skipped: {dep} {'could not run' if refused else 'failed'}",
         "refused": refused,
+        "skipped": True,
         "seconds": 0.0,
     }
 
