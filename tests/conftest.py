@@ -17,10 +17,17 @@ from neoedit.rendering.renderer import RenderConfig
 from neoedit.sim.spec import ScanSpec
 from neoedit.sim.suite import benchmark_scenes
 from neoedit.training.trainer import TrainConfig, train
+from neoedit.utils.threads import configure_threads
 
 # messages are checked as printed: rich wraps them at the terminal width (80 columns when
 # there is no terminal), so a long temporary path would break a line inside a checked phrase
 os.environ["COLUMNS"] = "250"
+
+# under pytest-xdist (make test runs two workers on two cores) each worker keeps to one
+# thread, so the workers do not fight over the cores
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    os.environ.setdefault("NEO_THREADS", "1")
+    configure_threads()
 
 # property tests draw the same examples on every run (CI must not fail by chance)
 settings.register_profile("deterministic", derandomize=True, database=None, deadline=None)

@@ -90,11 +90,14 @@ def _points_in(box: OrientedBox, n: int = 40000) -> torch.Tensor:
     return pts.float()
 
 
-def _mass_centroid(scene, pts: torch.Tensor) -> tuple[float, np.ndarray]:
-    """Mean rendered density over ``pts`` and its density-weighted centroid."""
+def _solid(scene, pts: torch.Tensor, sigma: float = 20.0) -> tuple[int, np.ndarray]:
+    """How many of ``pts`` are solid (rendered density above ``sigma``: opaque within a few
+    millimetres) and their centroid. Counted by volume, not density-weighted: a distilled
+    student's peak densities differ from its teacher's (5000 vs 3500 at the 90th percentile)
+    where both render the same opaque surface."""
     with torch.no_grad():
-        w = scene.field.density(pts) * scene.grid.is_occupied(pts)
-    return float(w.mean()), ((w[:, None] * pts).sum(0) / w.sum()).numpy()
+        solid = (scene.field.density(pts) * scene.grid.is_occupied(pts)) > sigma
+    return int(solid.sum()), pts[solid].mean(0).numpy()
 
 
 def _write_plan(path: Path, steps: list[dict]) -> Path:
@@ -135,11 +138,13 @@ def test_plan_writes_a_chain_every_verb_accepts(chain: Path, move_scene: Path, c
     src = OrientedBox.from_dict(fine.meta.edits[-1]["source_boxes"][0])
     tgt = OrientedBox.from_dict(fine.meta.edits[-1]["target_boxes"][0])
     assert OrientedBox.from_dict(fine.meta.edits[-1]["boxes"][0]).center_m[0] > 0.1
-    around = _points_in(src.grown(0.03))  # holds both boxes
-    (m0, c0), (m1, c1) = _mass_centroid(first, around), _mass_centroid(fine, around)
-    assert 0.5 < m1 / m0 < 1.6  # neither cut away nor doubled ...
+    around = _points_in(src.grown(0.03))  # holds both boxes ...
+    # ... and the table top: only what stands 1 cm above the box's floor is the mug
+    around = around[around[:, 2] > src.center_m[2] - src.size_m[2] / 2 + 0.01]
+    (v0, c0), (v1, c1) = _solid(first, around), _solid(fine, around)
+    assert 0.75 < v1 / v0 < 1.33  # neither cut away nor doubled ...
     shift = np.asarray(tgt.center_m) - np.asarray(src.center_m)
-    assert np.linalg.norm((c1 - c0)[:2] - shift[:2]) < 0.01  # ... and moved by 1.5 cm
+    assert np.linalg.norm((c1 - c0)[:2] - shift[:2]) < 0.005  # ... and moved by 1.5 cm
     removed = load_scene(chain)  # the store: its current version
     assert _mean_density(removed, tgt) < 0.25 * _mean_density(fine, tgt)
     # each step's base field is the original's, stored once: every edit is a patch
