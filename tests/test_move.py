@@ -152,9 +152,10 @@ def test_move_end_to_end(move_scene: Path, sim_root: Path, tmp_path: Path):
     assert main([*args, "--out", str(out), *FAST, *SPARSE_ARGS]) == 0
     assert tree_digest(move_scene) == before  # the input is untouched, byte for byte
     moved = load_scene(out)
-    # the edit is one patch owning the edited regions; the base field is the parent's, bit
-    # for bit (the rest of the scene cannot drift), plus one language field
-    assert isinstance(moved.field, PatchedField) and len(moved.meta.patches) == 1
+    # the edit is two patches, one owning the source region and one the target box; the
+    # base field is the parent's, bit for bit (the rest of the scene cannot drift), plus one
+    # language field
+    assert isinstance(moved.field, PatchedField) and len(moved.meta.patches) == 2
     for k, v in parent.field.state_dict().items():
         assert torch.equal(moved.field.base.state_dict()[k], v), k
     assert moved.meta.parent == parent.meta.version_id and moved.meta.edits[-1]["type"] == "move"
@@ -229,13 +230,13 @@ def test_moved_version_is_self_contained_and_moves_again(
         c = torch.tensor([moved_box.center_m], dtype=torch.float32)
         assert float(field_.density(c)) >= 0.0
     # a full move of the moved object again, from the preview itself: the preview's
-    # render-time move is settled into a patch first, then the move trains its own patch
+    # render-time move is settled into a patch first, then the move trains its own two
     (tmp_path / "moved_box.json").write_text(json.dumps(p.meta.moves[0]["target"]))
     again = tmp_path / "again"
     cmd2 = ["move", str(preview), "--box", str(tmp_path / "moved_box.json"), "--translate"]
     assert main([*cmd2, "-0.05", "0", "0", "--out", str(again), *FAST]) == 0
     a = load_scene(again)
-    assert isinstance(a.field, PatchedField) and len(a.meta.patches) == 2 and not a.meta.moves
+    assert isinstance(a.field, PatchedField) and len(a.meta.patches) == 3 and not a.meta.moves
     assert a.meta.parent == p.meta.version_id and "settle_s" in a.meta.edits[-1]["timings"]
 
 

@@ -95,10 +95,11 @@ class MoveConfig:
     """Distil with stage 1 only, for the whole budget (the ablation 'field distillation
     only')."""
     student: str = "patch"
-    """'patch': the student is a new patch of the field that owns the edited regions (the
-    source box with the support under it, the target box), initialised from the current
-    weights; the rest of the scene stays bit-identical, so a chain of edits cannot wash it
-    out. 'field': the whole field is the student (updates limited to the table rows that
+    """'patch': the student is two new patches of the field, initialised from the current
+    weights: one owns the source boxes with the support under them (its MLPs frozen: the
+    hole needs only table rows), one owns the target boxes (its MLPs learn too: a new
+    object stands there); the rest of the scene stays bit-identical, so a chain of edits
+    cannot wash it out. 'field': the whole field is the student (updates limited to the table rows that
     samples in the boxes read; earlier patches are baked in). The Seal-3D-style baseline
     always distils the whole field, as Seal-3D does."""
 
@@ -342,12 +343,19 @@ def _distil_move(
             dcfg, field_steps=dcfg.field_steps + dcfg.render_steps, render_steps=0
         )
     patch_mode = cfg.student == "patch" and cfg.method == "neo"
+    students: RadianceField | list[tuple[RadianceField, float]]
     if patch_mode:
+        # two patches: the source regions (MLPs frozen, as the inpainted hole needs only the
+        # table's rows) and the target boxes (MLPs learning: a new object stands there)
         child.field = copy.deepcopy(parent.field)
-        student = child.patched().add_patch(regions[: len(sources) + len(targets)])
+        patched = child.patched()
+        students = [
+            (patched.add_patch(regions[: len(sources)]), dcfg.mlp_lr_factor),
+            (patched.add_patch(list(targets)), dcfg.patch_mlp_lr_factor),
+        ]
         dcfg = dataclasses.replace(dcfg, local_rows=False)
     else:
-        student = copy.deepcopy(_base(parent.field))
+        students = copy.deepcopy(_base(parent.field))
     timings["setup_s"] = round(time.perf_counter() - t, 2)
     t = time.perf_counter()
     if cfg.method == "seal3d":
@@ -356,12 +364,12 @@ def _distil_move(
         glob = dataclasses.replace(dcfg, field_steps=0, freeze_mlp=False)
         grown = [b.grown(0.02) for b in regions]
         losses = distill(
-            student, student_grid, teacher, teacher_grid, pool, grown,
+            students, student_grid, teacher, teacher_grid, pool, grown,
             parent.meta.render, parent.background, local,
         )  # fmt: skip
         losses.update(
             distill(
-                student,
+                students,
                 student_grid,
                 teacher,
                 teacher_grid,
@@ -374,14 +382,14 @@ def _distil_move(
         )
     else:
         losses = distill(
-            student, student_grid, teacher, teacher_grid, pool, regions,
+            students, student_grid, teacher, teacher_grid, pool, regions,
             parent.meta.render, parent.background, dcfg,
             view=child.field if patch_mode else None,
         )  # fmt: skip
     timings["distill_s"] = round(time.perf_counter() - t, 2)
     t = time.perf_counter()
-    if not patch_mode:
-        child.field = student
+    if isinstance(students, RadianceField):
+        child.field = students
     child.grid = copy.deepcopy(parent.grid)
     refresh_grid(child.grid, child.field.density, cells_in_boxes(child.grid, regions))
     timings["grid_s"] = round(time.perf_counter() - t, 2)
