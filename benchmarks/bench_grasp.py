@@ -5,8 +5,10 @@ the executed outcome compared with the predicted version.
 
 Per object (NEO-Sim pick_place_1-4 and the 4 assembly steps): the object is found by name on
 the version *before* the move (for assembly steps 2-4 an edited version), grasps are planned
-on it (`neo grasp`), the top-1 and then up to the top-5 are executed in the scene's PyBullet
-world (replaying earlier steps), and the first successful execution is scanned with the
+on it (`neo grasp`, the best 20), those the arm reaches at every waypoint of the pick and the
+place come first (`neo sim execute`'s kinematic check; `--no-reach-check`: the planner's
+order), up to 5 are executed in that order in the scene's PyBullet world (replaying earlier
+steps), and the first successful execution is scanned with the
 scene's cameras. Figures: top-1 / top-5 success, planning time, placement error (position,
 yaw) against the intended transform, and PSNR (Full, In) of the predicted version (`neo
 move`'s output) against the executed outcome's held-out views. The same sampler on the
@@ -37,7 +39,7 @@ from neoedit.grasp.antipodal import scene_density
 from neoedit.language.localize import query_scene
 from neoedit.language.text import load_text_encoder
 from neoedit.scene import load_scene
-from neoedit.sim.execute import ExecuteConfig, execute_action
+from neoedit.sim.execute import ExecuteConfig, execute_action, reachable_first
 from neoedit.sim.spec import scene_spec_from_dict
 from neoedit.sim.world import SimWorld
 
@@ -62,20 +64,36 @@ def truth_density(scene_dir: Path, step: int):  # type: ignore[no-untyped-def]
     return density
 
 
-def attempt(scene_dir: Path, step: int, grasps: list, out: Path) -> dict:
-    """Execute the top grasps in order until one succeeds."""
+def attempt(scene_dir: Path, step: int, grasps: list, out: Path, reach: bool) -> dict:
+    """Execute the top grasps in order until one succeeds; with ``reach``, those the arm
+    reaches at every waypoint (kinematic check) come first, in the planner's order."""
     tries = []
-    for rank, g in enumerate(grasps[:5]):
+    cfg = ExecuteConfig()
+    dicts = [g.to_dict() for g in grasps]
+    t0 = time.perf_counter()
+    try:
+        order = reachable_first(scene_dir, step, dicts, cfg) if reach else []
+    except NeoError as e:  # e.g. the KUKA setup: no gripper to execute with
+        return {"top1": False, "top5": False, "tries": [], "scan": None, "error": str(e)}
+    ranks = [i for i, _, _ in order] if reach else list(range(len(dicts)))
+    check = {
+        "reachable": sum(e <= cfg.reach_tolerance_m for _, e, _ in order) if reach else None,
+        "reach_check_s": round(time.perf_counter() - t0, 2),
+    }
+    for rank, index in enumerate(ranks[:5]):
         folder = out / f"attempt_{rank}"
         try:
-            ex = execute_action(scene_dir, step, g.to_dict(), folder, ExecuteConfig())
+            ex = execute_action(scene_dir, step, dicts[index], folder, cfg)
         except NeoError as e:  # e.g. the KUKA setup: no gripper to execute with
             return {"top1": False, "top5": False, "tries": [], "scan": None, "error": str(e)}
         record = json.loads((folder / "execution.json").read_text())
-        tries.append({"rank": rank, "stage": ex.stage, "cause": ex.cause, **record})
+        tries.append(
+            {"rank": rank, "planner_rank": index, "stage": ex.stage, "cause": ex.cause, **record}
+        )
         if ex.success:
-            return {"top1": rank == 0, "top5": True, "tries": tries, "scan": str(folder / "scan")}
-    return {"top1": False, "top5": False, "tries": tries, "scan": None}
+            done = {"top1": rank == 0, "top5": True, "tries": tries, "scan": str(folder / "scan")}
+            return {**done, **check}
+    return {"top1": False, "top5": False, "tries": tries, "scan": None, **check}
 
 
 def run_object(name: str, scene_dir: Path, step: int, before, predicted, args) -> dict:  # type: ignore[no-untyped-def]
@@ -88,15 +106,16 @@ def run_object(name: str, scene_dir: Path, step: int, before, predicted, args) -
         ("truth geometry", truth_density(scene_dir, step)),
     ):
         t0 = time.perf_counter()
-        grasps = plan_grasps(density, box, GraspConfig(), top_k=5)
+        grasps = plan_grasps(density, box, GraspConfig(), top_k=args.candidates)
         seconds = time.perf_counter() - t0
         out = args.out / name / label.replace(" ", "_")
         res = (
-            attempt(scene_dir, step, grasps, out)
+            attempt(scene_dir, step, grasps, out, not args.no_reach_check)
             if grasps
             else {"top1": False, "top5": False, "tries": [], "scan": None}
         )
         res["plan_s"] = round(seconds, 2)
+
         res["n_grasps"] = len(grasps)
         if res["scan"] is not None and label == "neo":
             done = res["tries"][-1]
@@ -108,7 +127,8 @@ def run_object(name: str, scene_dir: Path, step: int, before, predicted, args) -
         row[label] = res
         print(
             f"{name:24s} {label:15s} grasps {len(grasps)}  top1 {res['top1']}  top5 {res['top5']}  "
-            f"plan {seconds:.1f} s  {res.get('placement_error', '')}  {res.get('prediction_vs_outcome', '')}",
+            f"plan {seconds:.1f} s  reachable {res.get('reachable')}/{len(grasps)}  "
+            f"{res.get('placement_error', '')}  {res.get('prediction_vs_outcome', '')}",
             flush=True,
         )
     return row
@@ -119,6 +139,29 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("outputs/bench_grasp"))
     parser.add_argument("--views", type=int, default=6)
     parser.add_argument("--scenes", nargs="+", default=[f"pick_place_{k}" for k in range(1, 5)])
+    parser.add_argument(
+        "--candidates",
+        type=int,
+        default=20,
+        help="grasps kept from the planner, best first (the arm tries up to 5 of them)",
+    )
+    parser.add_argument(
+        "--no-reach-check",
+        action="store_true",
+        help="try the planner's top 5 in its order (no kinematic check of the arm's reach)",
+    )
+    parser.add_argument(
+        "--moves",
+        type=Path,
+        default=Path("outputs/bench_move"),
+        help="bench_move.py's output: the NEO-moved version of each scene (SCENE/neo)",
+    )
+    parser.add_argument(
+        "--store",
+        type=Path,
+        default=Path("outputs/bench_assembly/neo_store"),
+        help="bench_assembly.py's NEO scene store (step_0 .. step_4)",
+    )
     args = parser.parse_args()
     print("command: python " + " ".join(shlex.quote(a) for a in sys.argv))
     print(f"machine: {platform.machine()}, {platform.system()}, {time.strftime('%Y-%m-%d %H:%M')}")
@@ -126,11 +169,11 @@ def main() -> None:
     results = {}
     for name in args.scenes:
         before = load_scene(Path("outputs/bench_language") / f"{name}_pre")
-        predicted = load_scene(Path("outputs/bench_move_patch") / name / "neo")
+        predicted = load_scene(args.moves / name / "neo")
         results[name] = run_object(
             name, Path("outputs/neosim_standard") / name, 1, before, predicted, args
         )
-    store = Path("outputs/bench_assembly/neo_store")
+    store = args.store
     for k in range(1, 5):
         if not (store / f"step_{k}").is_dir():
             break

@@ -2,12 +2,20 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from neoedit.errors import NeoError
 from neoedit.geometry import motion_about
-from neoedit.sim.execute import ExecuteConfig, execute_move, placement_error
+from neoedit.sim.execute import (
+    ExecuteConfig,
+    execute_move,
+    placement_error,
+    reach_error,
+    reachable_first,
+)
 from neoedit.sim.spec import ActionSpec, ObjectSpec, SceneSpec
 from neoedit.sim.world import SimWorld
 
@@ -62,3 +70,42 @@ def test_a_robot_without_a_gripper_is_refused():
     )
     with SimWorld(spec) as world, pytest.raises(NeoError, match="no parallel gripper"):
         execute_move(world, "cube", _top_down(world), np.eye(4), ExecuteConfig())
+
+
+def test_the_reach_check_predicts_the_motion_and_leaves_the_world_as_it_was():
+    with _world() as world:
+        centre = np.asarray(world.object_box("cube").center_m)
+        transform = motion_about(centre, np.array([0.05, 0.1, 0.0]), 30.0)
+        before = world.object_pose("cube")
+        err, _ = reach_error(world, _top_down(world), transform, ExecuteConfig())
+        assert err < ExecuteConfig().reach_tolerance_m
+        far = motion_about(centre, np.array([0.9, 0.0, 0.0]), 0.0)  # carried 1.4 m from the base
+        err, stage = reach_error(world, _top_down(world), far, ExecuteConfig())
+        assert err > 0.1 and stage in ("carry", "place", "retreat")
+        np.testing.assert_array_equal(world.object_pose("cube"), before)
+        ex = execute_move(world, "cube", _top_down(world), transform, ExecuteConfig())
+        assert ex.success, ex.cause  # the arm was put back home: the motion still works
+
+
+def test_sim_execute_runs_the_first_grasp_the_arm_reaches(tmp_path, capsys):
+    import json
+
+    from conftest import TINY_SCAN
+
+    from neoedit.cli import main
+    from neoedit.sim.run import simulate_scene
+
+    with _world() as world:
+        good = _top_down(world)
+        spec = world.spec
+    simulate_scene(dataclasses.replace(spec, scan=TINY_SCAN), tmp_path / "scene")
+    far = {**good, "position_m": [0.75, 0.3, 0.02]}  # 1.4 m from the Panda's base
+    order = reachable_first(tmp_path / "scene", 1, [far, good], ExecuteConfig())
+    assert [i for i, _, _ in order] == [1, 0] and order[1][1] > 0.1
+    (tmp_path / "grasps.json").write_text(json.dumps([far, good]))
+    args = ["sim", "execute", str(tmp_path / "scene"), "--action", "1"]
+    args += ["--grasp", str(tmp_path / "grasps.json"), "--out", str(tmp_path / "run")]
+    assert main(args) == 0
+    assert "executing grasp 2 of 2" in capsys.readouterr().out
+    record = json.loads((tmp_path / "run" / "execution.json").read_text())
+    assert record["success"] and record["placement_error"]["position_m"] < 0.01

@@ -315,3 +315,50 @@ def test_edited_versions_refuse_language_retraining_from_the_scan(
             resume=True,
             language=LanguageTrainConfig(),
         )
+
+
+def test_regions_only_distillation_draws_and_compares_only_through_the_boxes(
+    trained: Path, sim_root: Path
+):
+    """A patch student equals its teacher outside the boxes, so ``regions_only`` draws every
+    ray through a box (as many rays as the focus share had) and stage 1 compares samples in
+    the boxes only; the patch learns, the rest of the field stays bit-identical."""
+    from neoedit.edit.distill import DistillConfig, RayPool, distill
+    from neoedit.fields.suppressed import SuppressedField
+
+    objects = json.loads((sim_root / "removal_1" / "pre" / "objects.json").read_text())
+    box = OrientedBox.from_dict(
+        next(o for o in objects["objects"] if o["name"] == "red mug")["box"]
+    )
+    scene = load_scene(trained)
+    base = scene.field
+    base_state = {k: v.clone() for k, v in base.state_dict().items()}
+    teacher = SuppressedField(base, [box])  # the mug switched off
+    cams, _, _ = scene.scan_cameras()
+    pool = RayPool(cams, None, [box], "cpu")
+    drawn: list[tuple[int, float]] = []
+    compared: list[torch.Tensor] = []
+    sample = pool.sample
+    pool.sample = lambda n, focus: drawn.append((n, focus)) or sample(n, focus)  # type: ignore[method-assign]
+
+    class Recording:  # the teacher, noting where the per-sample loss compares
+        aabb = teacher.aabb
+        density = teacher.density
+
+        def __call__(self, points: torch.Tensor, directions: torch.Tensor):
+            compared.append(points)
+            return teacher(points, directions)
+
+    patched = PatchedField(base)
+    patch = patched.add_patch([box])
+    before = patch.encoding.table.detach().clone()
+    cfg = DistillConfig(
+        field_steps=3, render_steps=0, rays=256, focus=0.75, local_rows=False, regions_only=True
+    )
+    distill([(patch, 0.0)], scene.grid, Recording(), scene.grid, pool, [box],
+            scene.meta.render, scene.background, cfg, view=patched)  # fmt: skip
+    assert drawn == [(192, 1.0)] * 3
+    pts = torch.cat(compared)
+    assert len(pts) > 3 * 1000 and bool(points_in_box(pts, box).all())
+    assert not torch.equal(patch.encoding.table, before)  # the patch learnt
+    assert all(torch.equal(base.state_dict()[k], v) for k, v in base_state.items())

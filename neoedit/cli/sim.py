@@ -143,25 +143,34 @@ class SimExecuteCommand:
     action: int
     """Which action (1-based) to execute; earlier ones are replayed as simulated."""
     grasp: Path
-    """Grasp JSON from `neo grasp --json` (a list: the first is used, or one grasp)."""
+    """Grasp JSON from `neo grasp --json`: one grasp, or a list, best first, of which the
+    first one the arm reaches at every waypoint is executed (a kinematic check; the first of
+    the list when none is reachable, so the failure is reported)."""
     out: Path
     """Output folder (scan/ and execution.json)."""
     overwrite: bool = False
 
     def run(self) -> None:
-        from neoedit.sim.execute import ExecuteConfig, execute_action
+        from neoedit.sim.execute import ExecuteConfig, execute_action, reachable_first
 
         try:
             raw = json.loads(self.grasp.read_text())
         except (OSError, ValueError) as e:
             raise NeoError(f"{self.grasp}: cannot read a grasp: {e}") from None
-        grasp = raw[0] if isinstance(raw, list) and raw else raw
-        if not isinstance(grasp, dict) or not {"position_m", "rotation"} <= grasp.keys():
-            raise NeoError(f"{self.grasp}: expected a grasp with position_m and rotation")
+        grasps = raw if isinstance(raw, list) else [raw]
+        if not grasps or not all(
+            isinstance(g, dict) and {"position_m", "rotation"} <= g.keys() for g in grasps
+        ):
+            raise NeoError(f"{self.grasp}: expected grasps with position_m and rotation")
         check_writable_output(self.out, [self.scene, self.grasp], "execution", self.overwrite)
-        ex = execute_action(
-            self.scene, self.action, grasp, self.out, ExecuteConfig(), self.overwrite
-        )
+        cfg = ExecuteConfig()
+        pick, err, stage = reachable_first(self.scene, self.action, grasps, cfg)[0]
+        if len(grasps) > 1:
+            console.print(
+                f"executing grasp {pick + 1} of {len(grasps)} (reach check: "
+                f"{err * 100:.1f} cm off at worst, at {stage or 'no stage'})"
+            )
+        ex = execute_action(self.scene, self.action, grasps[pick], self.out, cfg, self.overwrite)
         if not ex.success:
             console.print(f"[bold red]execution failed at {ex.stage}: {ex.cause}[/]")
             raise SystemExit(1)

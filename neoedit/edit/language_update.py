@@ -28,7 +28,7 @@ from neoedit.cameras.rays import CameraTensors
 from neoedit.fields.composed import region_owner
 from neoedit.fields.language import LanguageField
 from neoedit.fields.suppressed import SuppressedField
-from neoedit.geometry import OrientedBox, points_in_box
+from neoedit.geometry import OrientedBox, points_in_boxes
 from neoedit.geometry.masks import box_pixels
 from neoedit.language.training import LanguageTrainConfig, fit_language
 from neoedit.rendering.surface import render_surface
@@ -130,10 +130,7 @@ def _edited_surface(child: Scene, boxes: list[OrientedBox], cfg: LanguageUpdateC
         field_ = SuppressedField(field_, cut)
     points, acc = render_surface(field_, child.grid, rays, child.meta.render)
     points = points[acc >= cfg.min_accumulation]
-    inside = torch.zeros(len(points), dtype=torch.bool, device=device)
-    for box in boxes:
-        inside |= points_in_box(points, box)
-    return points[inside]
+    return points[points_in_boxes(points, boxes)]
 
 
 def update_language(
@@ -149,10 +146,7 @@ def update_language(
     boxes = [b.grown(cfg.margin_m) for b in [*edit.source, *(b for b, _ in edit.targets)]]
     new_points = _edited_surface(child, boxes, cfg)
     old = parent.surface_points_m
-    outside = torch.ones(len(old), dtype=torch.bool, device=old.device)
-    for box in boxes:
-        outside &= ~points_in_box(old, box)
-    kept = old[outside]
+    kept = old[~points_in_boxes(old, boxes)]
     query = composed_language_query(new_points, edit, cfg.ring_m)
     gen = torch.Generator().manual_seed(cfg.seed)
     n_hold = min(len(kept), max(len(new_points), 4 * cfg.batch))

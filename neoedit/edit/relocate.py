@@ -353,7 +353,8 @@ def _distil_move(
             (patched.add_patch(regions[: len(sources)]), dcfg.mlp_lr_factor),
             (patched.add_patch(list(targets)), dcfg.patch_mlp_lr_factor),
         ]
-        dcfg = dataclasses.replace(dcfg, local_rows=False)
+        # the rest of the scene is the parent's, bit for bit: only rays through the boxes teach
+        dcfg = dataclasses.replace(dcfg, local_rows=False, regions_only=True)
     else:
         students = copy.deepcopy(_base(parent.field))
     timings["setup_s"] = round(time.perf_counter() - t, 2)

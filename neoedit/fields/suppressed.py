@@ -6,7 +6,7 @@ from __future__ import annotations
 import torch
 
 from neoedit.fields.radiance import Field
-from neoedit.geometry import OrientedBox, points_in_box
+from neoedit.geometry import OrientedBox, points_in_boxes
 
 
 class SuppressedField(torch.nn.Module):
@@ -19,10 +19,7 @@ class SuppressedField(torch.nn.Module):
         self.aabb = field.aabb
 
     def _outside(self, points: torch.Tensor) -> torch.Tensor:
-        keep = torch.ones(len(points), dtype=torch.bool, device=points.device)
-        for box in self.boxes:
-            keep &= ~points_in_box(points, box)
-        return keep
+        return ~points_in_boxes(points, self.boxes)
 
     def density(self, points: torch.Tensor) -> torch.Tensor:
         return self.field.density(points) * self._outside(points)

@@ -1,4 +1,4 @@
-from neoedit.geometry.box import OrientedBox, points_in_box
+from neoedit.geometry.box import OrientedBox, points_in_box, points_in_boxes
 from neoedit.geometry.transforms import invert_rigid, is_rigid, motion_about, rot_z, yaw_of_rotation
 
 __all__ = [
@@ -7,6 +7,7 @@ __all__ = [
     "is_rigid",
     "motion_about",
     "points_in_box",
+    "points_in_boxes",
     "rot_z",
     "yaw_of_rotation",
 ]

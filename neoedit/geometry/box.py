@@ -7,7 +7,7 @@ Serialised everywhere (objects.json, scene.json, ``neo query`` output) as
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -191,6 +191,14 @@ def points_in_box(points: torch.Tensor, box: OrientedBox) -> torch.Tensor:
     box (faces included). The tensor counterpart of :meth:`OrientedBox.contains`."""
     local = (points - points.new_tensor(box.center_m)) @ points.new_tensor(box.rotation)
     return (local.abs() <= points.new_tensor(box.half_extents)).all(-1)
+
+
+def points_in_boxes(points: torch.Tensor, boxes: Sequence[OrientedBox]) -> torch.Tensor:
+    """(N,) bool: which world points (N,3) lie inside any of ``boxes`` (none: all False)."""
+    inside = torch.zeros(len(points), dtype=torch.bool, device=points.device)
+    for box in boxes:
+        inside |= points_in_box(points, box)
+    return inside
 
 
 def box_iou_3d(a: OrientedBox, b: OrientedBox) -> float:

@@ -17,6 +17,7 @@ import numpy as np
 import pybullet as pb
 
 from neoedit.errors import NeoError
+from neoedit.sim.spec import ActionSpec, SceneSpec
 from neoedit.sim.world import PHYSICS_HZ, SimWorld
 
 EE_LINK = "panda_grasptarget"
@@ -170,6 +171,59 @@ def hand_pose(grasp: dict[str, Any], cfg: ExecuteConfig) -> tuple[np.ndarray, np
     return np.asarray(grasp["position_m"], dtype=np.float64) + cfg.ee_offset_m * approach, hand
 
 
+def _hand_for(
+    arm: PandaArm, grasp: dict[str, Any], cfg: ExecuteConfig
+) -> tuple[np.ndarray, np.ndarray]:
+    """The hand pose for ``grasp``, turned half a turn about its approach when that needs
+    less wrist turn from where the hand is (two symmetric fingers: the same grasp)."""
+    pos, rot = hand_pose(grasp, cfg)
+    flip = np.diag([-1.0, -1.0, 1.0])
+    if np.trace(arm.ee_pose()[1].T @ (rot @ flip)) > np.trace(arm.ee_pose()[1].T @ rot):
+        rot = rot @ flip
+    return pos, rot
+
+
+def _waypoints(
+    pos: np.ndarray, rot: np.ndarray, transform: np.ndarray, cfg: ExecuteConfig
+) -> list[tuple[str, np.ndarray, np.ndarray]]:
+    """(stage, position, rotation) of the hand at the end of every motion of a pick-and-place."""
+    up = np.array([0.0, 0.0, cfg.lift_m])
+    goal_pos = transform[:3, :3] @ pos + transform[:3, 3]
+    goal_rot = transform[:3, :3] @ rot
+    return [
+        ("reach", pos - cfg.pregrasp_m * rot[:, 2], rot),
+        ("approach", pos, rot),
+        ("lift", pos + up, rot),
+        ("carry", goal_pos + up, goal_rot),
+        ("place", goal_pos + np.array([0.0, 0.0, 0.004]), goal_rot),
+        ("retreat", goal_pos - cfg.pregrasp_m * goal_rot[:, 2], goal_rot),
+    ]
+
+
+def reach_error(
+    world: SimWorld, grasp: dict[str, Any], transform: np.ndarray, cfg: ExecuteConfig
+) -> tuple[float, str]:
+    """Kinematic check, before any motion: the largest distance between a waypoint of the
+    pick-and-place and where inverse kinematics (chained from home, as the motion goes)
+    puts the hand, and the stage where it is largest. No physics step is taken and the arm
+    is put back home, so the world is as it was."""
+    arm = PandaArm(world, cfg)
+    pos, rot = _hand_for(arm, grasp, cfg)
+    worst, where = 0.0, ""
+    try:
+        for stage, p, r in _waypoints(pos, rot, transform, cfg):
+            for _ in range(3):  # refine from the last solution, as the waypoints do
+                for j, q in zip(arm.arm, arm._ik(p, r), strict=True):
+                    pb.resetJointState(arm.robot, j, q, physicsClientId=arm.c)
+            err = float(np.linalg.norm(arm.ee_pose()[0] - p))
+            if err > worst:
+                worst, where = err, stage
+    finally:
+        for j, q in zip(arm.arm, arm.home, strict=True):
+            pb.resetJointState(arm.robot, j, q, physicsClientId=arm.c)
+    return worst, where
+
+
 def execute_move(
     world: SimWorld, name: str, grasp: dict[str, Any], transform: np.ndarray, cfg: ExecuteConfig
 ) -> Execution:
@@ -178,16 +232,14 @@ def execute_move(
     body = world.bodies[name]
     others = {world.table} | {b for n, b in world.bodies.items() if n != name}
     before = world.object_pose(name)
-    pos, rot = hand_pose(grasp, cfg)
-    flip = np.diag([-1.0, -1.0, 1.0])  # the hand turned half a turn about its approach
-    if np.trace(arm.ee_pose()[1].T @ (rot @ flip)) > np.trace(arm.ee_pose()[1].T @ rot):
-        rot = rot @ flip  # the same grasp (two symmetric fingers), less wrist turn
-    approach = rot[:, 2]
+    pos, rot = _hand_for(arm, grasp, cfg)
+    # the hand moves rigidly with the object while carrying, by the same world transform
+    way = {stage: (p, r) for stage, p, r in _waypoints(pos, rot, transform, cfg)}
     ex = Execution(False, "reach")
 
-    def step(stage: str, target: np.ndarray, hand: np.ndarray, avoid: set[int]) -> bool:
+    def step(stage: str, avoid: set[int]) -> bool:
         ex.stage = stage
-        err, touched = arm.move_to(target, hand, cfg.segment_s)
+        err, touched = arm.move_to(*way[stage], cfg.segment_s)
         if err > cfg.reach_tolerance_m:
             ex.cause = f"{stage}: the arm cannot reach the pose ({err * 100:.1f} cm off)"
             return False
@@ -199,8 +251,7 @@ def execute_move(
 
     opening = min(float(grasp.get("width_m", 0.06)) + 0.02, 0.08)  # as the planner checked
     arm.fingers_to(opening)
-    pre = pos - cfg.pregrasp_m * approach
-    if not step("reach", pre, rot, others | {body}) or not step("approach", pos, rot, others):
+    if not step("reach", others | {body}) or not step("approach", others):
         return ex
     ex.stage = "close"
     arm.fingers_to(0.0, cfg.grip_force_n)
@@ -208,26 +259,20 @@ def execute_move(
     if not arm.holds(body):
         ex.cause = "close: the fingers do not both touch the object"
         return ex
-    up = np.array([0.0, 0.0, cfg.lift_m])
-    if not step("lift", pos + up, rot, set()):
+    if not step("lift", set()):
         return ex
     _wait(world, cfg.hold_s)
     lifted = world.object_pose(name)[2, 3] - before[2, 3]
     if not arm.holds(body) or lifted < 0.5 * cfg.lift_m:
         ex.cause = f"lift: the object slipped (raised {lifted * 100:.1f} cm)"
         return ex
-    # carry: the hand moves rigidly with the object, by the same world transform
-    goal_pos = transform[:3, :3] @ pos + transform[:3, 3]
-    goal_rot = transform[:3, :3] @ rot
-    if not step("carry", goal_pos + up, goal_rot, set()):
-        return ex
-    if not step("place", goal_pos + np.array([0.0, 0.0, 0.004]), goal_rot, set()):
+    if not step("carry", set()) or not step("place", set()):
         return ex
     ex.stage = "release"
     arm.fingers_to(0.08)
     _wait(world, 0.4)
     placed = world.object_pose(name)
-    if not step("retreat", goal_pos - cfg.pregrasp_m * (goal_rot[:, 2]), goal_rot, set()):
+    if not step("retreat", set()):
         return ex
     dragged = float(np.linalg.norm(world.object_pose(name)[:3, 3] - placed[:3, 3]))
     if dragged > 0.01:
@@ -250,6 +295,45 @@ def _names(world: SimWorld, bodies: set[int]) -> str:
     return ", ".join(names.get(b, f"body {b}") for b in sorted(bodies))
 
 
+def _scene_action(scene_dir: Path, action: int) -> tuple[SceneSpec, ActionSpec, np.ndarray]:
+    """(spec, the move, its world transform) of action ``action`` (1-based) of a NEO-Sim
+    scene folder; a clear error for anything else."""
+    from neoedit.sim.spec import scene_spec_from_dict
+
+    try:
+        meta = json.loads((Path(scene_dir) / "scene.json").read_text())
+        spec = scene_spec_from_dict(meta["spec"], source=str(scene_dir))
+    except (OSError, ValueError, KeyError) as e:
+        raise NeoError(f"{scene_dir} is not a NEO-Sim scene folder: {e}") from None
+    if not 1 <= action <= len(spec.actions):
+        raise NeoError(f"--action must be in 1..{len(spec.actions)} for {scene_dir}")
+    todo = spec.actions[action - 1]
+    if todo.type != "move":
+        raise NeoError(f"action {action} is a {todo.type}, not a move")
+    try:
+        transform = np.asarray(meta["actions"][action - 1]["transform_world"], dtype=np.float64)
+    except (KeyError, IndexError, TypeError, ValueError):
+        raise NeoError(
+            f"{scene_dir}/scene.json has no transform_world for action {action}"
+        ) from None
+    return spec, todo, transform
+
+
+def reachable_first(
+    scene_dir: Path, action: int, grasps: list[dict[str, Any]], cfg: ExecuteConfig
+) -> list[tuple[int, float, str]]:
+    """The grasps as (index, reach error [m], worst stage), those whose every waypoint the
+    arm reaches within ``cfg.reach_tolerance_m`` first (:func:`reach_error`; the planner's
+    order is kept within each group). The planner knows the scene, not the robot: this is
+    where the robot's reach comes in."""
+    spec, _, transform = _scene_action(scene_dir, action)
+    with SimWorld(spec) as world:
+        for a in spec.actions[: action - 1]:
+            world.apply(a)
+        errors = [(i, *reach_error(world, g, transform, cfg)) for i, g in enumerate(grasps)]
+    return sorted(errors, key=lambda e: (e[1] > cfg.reach_tolerance_m, e[0]))
+
+
 def execute_action(
     scene_dir: Path,
     action: int,
@@ -262,28 +346,12 @@ def execute_action(
     (1-based), execute that move with ``grasp``, and scan the outcome into ``out`` with the
     cameras of the scene's scans (``out/scan``, ``out/execution.json``)."""
     from neoedit.sim.capture import capture_scan
-    from neoedit.sim.spec import scene_spec_from_dict
     from neoedit.utils.io import atomic_directory, atomic_write_json
 
-    try:
-        meta = json.loads((Path(scene_dir) / "scene.json").read_text())
-        spec = scene_spec_from_dict(meta["spec"], source=str(scene_dir))
-    except (OSError, ValueError, KeyError) as e:
-        raise NeoError(f"{scene_dir} is not a NEO-Sim scene folder: {e}") from None
-    if not 1 <= action <= len(spec.actions):
-        raise NeoError(f"--action must be in 1..{len(spec.actions)} for {scene_dir}")
-    todo = spec.actions[action - 1]
-    if todo.type != "move":
-        raise NeoError(f"action {action} is a {todo.type}, not a move")
+    spec, todo, transform = _scene_action(scene_dir, action)
     rot = np.asarray(grasp.get("rotation"), dtype=np.float64)
     if rot.shape != (3, 3) or not np.allclose(rot.T @ rot, np.eye(3), atol=1e-3):
         raise NeoError("the grasp's rotation must be a 3x3 orthonormal matrix")
-    try:
-        transform = np.asarray(meta["actions"][action - 1]["transform_world"], dtype=np.float64)
-    except (KeyError, IndexError, TypeError, ValueError):
-        raise NeoError(
-            f"{scene_dir}/scene.json has no transform_world for action {action}"
-        ) from None
     with (
         atomic_directory(Path(out), overwrite=overwrite, kind="execution") as tmp,
         SimWorld(spec) as world,
