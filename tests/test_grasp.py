@@ -127,3 +127,44 @@ def test_neo_grasp_on_a_trained_scene(
     # the box file is an input: --json may not replace it
     bad = ["grasp", str(move_scene), "--box", str(tmp_path / "box.json"), "--json"]
     assert main([*bad, str(tmp_path / "box.json")]) == 2
+
+
+def foggy_cuboid(center, size, face=400.0, fog=25.0, wall=0.004):
+    """A cube as radiance fields often learn one: dense faces ``wall`` thick, fog inside."""
+    c, h = torch.tensor(center), torch.tensor(size) / 2
+    inner = h - wall
+
+    def density(p: torch.Tensor) -> torch.Tensor:
+        d = (p - c).abs()
+        inside = (d <= h).all(-1)
+        core = (d <= inner).all(-1)
+        return torch.where(core, fog, torch.where(inside, face, 0.0))
+
+    return density
+
+
+def test_a_cube_with_a_foggy_inside_is_grasped_across_its_faces_not_pinched():
+    """Its density's level set is a 4 mm shell: every pair on it would pinch a wall or an
+    edge. Seen from outside the cube is opaque, so the planner grasps it whole."""
+    cube = foggy_cuboid((0.0, 0.0, 0.025), (0.05, 0.05, 0.05))
+    box = OrientedBox((0.0, 0.0, 0.025), (0.05, 0.05, 0.05), 0.0)
+    grasps = plan_grasps(
+        lambda p: torch.maximum(cube(p), TABLE(p).float() * SOLID), box, GraspConfig(), top_k=10
+    )
+    assert grasps
+    assert all(abs(g.width_m - 0.05) < 0.008 for g in grasps), [g.width_m for g in grasps]
+    surface = object_surface(cube, box, GraspConfig().surface)
+    assert surface.solid(np.array([[0.0, 0.0, 0.025]]))[0]  # the fog counts as inside
+
+
+def test_a_cup_keeps_its_cavity_open():
+    outer = cylinder((0.0, 0.0, 0.04), 0.03, 0.08)
+    cavity = cylinder((0.0, 0.0, 0.045), 0.025, 0.08)  # open at the top, 5 mm floor
+
+    def cup(p: torch.Tensor) -> torch.Tensor:
+        return (outer(p) & ~cavity(p)).float() * SOLID
+
+    box = OrientedBox((0.0, 0.0, 0.04), (0.06, 0.06, 0.08), 0.0)
+    surface = object_surface(cup, box, GraspConfig().surface)
+    inside_cavity, in_wall = [0.0, 0.0, 0.05], [0.0275, 0.0, 0.05]
+    assert surface.solid(np.array([inside_cavity, in_wall])).tolist() == [False, True]

@@ -1,15 +1,16 @@
 """Antipodal grasp sampling on a field's surface, with collision checks against the whole
 scene and a ranking by antipodal quality, clearance and approach angle.
 
-1. Contacts: surface points of the object (marching cubes of the density in its box).
+1. Contacts: surface points of the object (marching cubes, in its box, of how opaque the
+   object is in front of each point seen from outside: :mod:`neoedit.grasp.surface`).
 2. Pairs: from a contact p1 with outward normal n1, march inward along -n1 through the
    density until it exits the object at p2 (normal n2). The pair is antipodal when both
    normals lie in the friction cone of the closing axis (half-angle atan(mu)) and the width
    fits the gripper.
 3. Poses: several approach directions perpendicular to the closing axis; a pose survives if
    the fingers, opened a little wider than the object, and the palm hold no density of the
-   *scene* (table, neighbours, the object itself elsewhere) at the grasp and along the last
-   part of the approach.
+   *scene* (table, neighbours, the object itself elsewhere) and no point inside the object's
+   surface, at the grasp and along the last part of the approach.
 4. Score: 0.5 quality (cosine of the worse contact angle) + 0.3 top-down approach + 0.2
    clearance (free share of the gripper grown by 1 cm); nearby duplicates are dropped.
 """
@@ -42,6 +43,9 @@ class GraspConfig:
     """Approach directions tried per antipodal pair (around the closing axis)."""
     min_width_m: float = 0.006
     """Thinner pairs are skipped (noise in a wall)."""
+    collision_density: float = 100.0
+    """A gripper point collides where the scene's density exceeds this [1/m] (about 40 %
+    opacity over 5 mm), or where it lies inside the object's surface."""
     approach_path_m: tuple[float, ...] = (0.03, 0.06)
     """The gripper is also checked this far back along its approach."""
     collision_step_m: float = 0.006
@@ -85,7 +89,7 @@ def antipodal_pairs(surface: Surface, cfg: GraspConfig) -> tuple[np.ndarray, ...
     pick = rng.choice(n, size=min(cfg.contacts, n), replace=False)
     p1, n1 = surface.points_m[pick], surface.normals[pick]
     vol: Volume = surface.volume
-    level = cfg.surface.level
+    level = surface.level
     step = vol.voxel_m / 2
     ts = np.arange(2 * step, cfg.gripper.max_width_m + step, step)
     local = vol.to_local(p1[:, None, :] - ts[None, :, None] * n1[:, None, :])
@@ -191,19 +195,26 @@ def plan_grasps(
     qual = np.repeat(quality, cfg.approaches)
     vertical = np.clip(-(rot[:, :, 2] @ up), 0.0, 1.0)
     order = np.argsort(-(0.5 * qual + 0.3 * vertical))  # most promising first
-    level = cfg.surface.level
+    level = cfg.collision_density
+
+    def blocking(points: torch.Tensor) -> torch.Tensor:
+        """The scene's density, infinite inside the object (its foggy inside included)."""
+        sigma = density(points)
+        inside = torch.as_tensor(surface.solid(points.cpu().numpy().astype(np.float64)))
+        return torch.where(inside.to(sigma.device), torch.full_like(sigma, math.inf), sigma)
+
     found: list[Grasp] = []
     for chunk in np.array_split(order, max(1, math.ceil(len(order) / 256))):
         hand = _gripper_points(cfg, width[chunk])  # each pose at its own opening
-        free = _occupied_share(density, centre[chunk], rot[chunk], hand, level) == 0
+        free = _occupied_share(blocking, centre[chunk], rot[chunk], hand, level) == 0
         for back in cfg.approach_path_m:
             shifted = hand - np.array([0.0, 0.0, back])  # further back along the approach
-            free &= _occupied_share(density, centre[chunk], rot[chunk], shifted, level) == 0
+            free &= _occupied_share(blocking, centre[chunk], rot[chunk], shifted, level) == 0
         keep = chunk[free]
         if len(keep) == 0:
             continue
         grown = _gripper_points(cfg, width[keep], grow=0.01)
-        clearance = 1.0 - _occupied_share(density, centre[keep], rot[keep], grown, level)
+        clearance = 1.0 - _occupied_share(blocking, centre[keep], rot[keep], grown, level)
         for i, c in zip(keep, clearance, strict=True):
             score = 0.5 * qual[i] + 0.3 * vertical[i] + 0.2 * c
             angle = math.degrees(math.acos(float(np.clip(vertical[i], -1, 1))))

@@ -1,6 +1,13 @@
 """An object's surface from a radiance field: density sampled on a grid in the object's box,
-marching cubes (scikit-image) for contact points, outward normals from the density gradient
-(finite differences: the hash-grid kernel gives no gradient with respect to positions)."""
+turned into how opaque the object is in front of each sample seen from outside, marching
+cubes (scikit-image) of that for contact points, outward normals from its gradient (finite
+differences: the hash-grid kernel gives no gradient with respect to positions).
+
+A surface of the density alone (a level set) fails on what a radiance field often learns:
+an object whose inside is fog (a cube of 12-40 /m behind faces of 60-100 /m still renders
+opaque). Its level set is a shell with holes, and every antipodal pair on it pinches a wall.
+Opacity seen from outside makes such an object solid and keeps real cavities open (a mug's
+inside is seen from above)."""
 
 from __future__ import annotations
 
@@ -25,8 +32,10 @@ DensityFn = Callable[[torch.Tensor], torch.Tensor]
 class SurfaceConfig:
     voxel_m: float = 0.003
     """Grid spacing of the density samples."""
-    level: float = 100.0
-    """Density [1/m] of the surface (about 40 % opacity over 5 mm)."""
+    opacity: float = 0.5
+    """A point is inside the object when whatever is in front of it, seen from above and
+    from the four sides (along the box's axes), is at least this opaque; the surface is
+    where that crosses this value."""
     margin_m: float = 0.015
     """The grid covers the object's box grown by this much (sides and top)."""
     above_support_m: float = 0.004
@@ -42,7 +51,7 @@ class Volume:
     """Local coordinates of sample [0, 0, 0]."""
     voxel_m: float
     values: np.ndarray
-    """(nx, ny, nz) density."""
+    """(nx, ny, nz) density, or what a surface is a level set of (:func:`depth_from_outside`)."""
     _gradients: list[np.ndarray] | None = field(default=None, repr=False)
 
     def to_world(self, local: np.ndarray) -> np.ndarray:
@@ -52,8 +61,8 @@ class Volume:
         return self.box.world_to_local(world)
 
     def outward_normals(self, local: np.ndarray) -> np.ndarray:
-        """Unit normals (..., 3), local frame, down the density gradient (finite differences,
-        computed once per volume); zero where the density is flat."""
+        """Unit normals (..., 3), local frame, down the gradient of ``values`` (finite
+        differences, computed once per volume); zero where they are flat."""
         if self._gradients is None:
             self._gradients = np.gradient(self.values, self.voxel_m)
         g = np.stack([self.sample(local, gk) for gk in self._gradients], -1)
@@ -73,8 +82,27 @@ class Surface:
     points_m: np.ndarray
     """(N,3) world surface points (marching-cubes vertices)."""
     normals: np.ndarray
-    """(N,3) outward unit normals (down the density gradient)."""
+    """(N,3) outward unit normals."""
     volume: Volume
+    """Optical depth in front of each sample, seen from outside (inside: above ``level``)."""
+    level: float
+
+    def solid(self, world: np.ndarray) -> np.ndarray:
+        """(N,) bool: which world points (N,3) lie inside the object (False off the grid)."""
+        return self.volume.sample(self.volume.to_local(world)) > self.level
+
+
+def depth_from_outside(density: np.ndarray, voxel_m: float) -> np.ndarray:
+    """Optical depth in front of every sample of a density grid, seen from outside along
+    the grid's axes: from above and from the four sides (not from below: the object stands
+    on its support), the least of the five. Each sample counts half of its own cell."""
+    step = density * voxel_m
+    best = np.full(density.shape, np.inf)
+    for axis, flip in ((0, False), (0, True), (1, False), (1, True), (2, True)):
+        s = np.flip(step, axis) if flip else step
+        depth = np.cumsum(s, axis) - 0.5 * s
+        best = np.minimum(best, np.flip(depth, axis) if flip else depth)
+    return best
 
 
 @torch.no_grad()
@@ -100,16 +128,20 @@ def sample_volume(density: DensityFn, box: OrientedBox, cfg: SurfaceConfig) -> V
 
 def object_surface(density: DensityFn, box: OrientedBox, cfg: SurfaceConfig) -> Surface:
     """Surface points and outward normals of what the field holds in ``box``."""
+    if not 0.0 < cfg.opacity < 1.0:
+        raise NeoError(f"the surface opacity must be in (0, 1), got {cfg.opacity}")
     volume = sample_volume(density, box, cfg)
-    if float(volume.values.max()) <= cfg.level:
+    volume.values = depth_from_outside(volume.values, cfg.voxel_m)
+    level = -float(np.log1p(-cfg.opacity))
+    if float(volume.values.max()) <= level:
         raise NeoError(
-            f"no surface in the object's box (peak density {volume.values.max():.0f} /m <= "
-            f"{cfg.level:.0f} /m): nothing to grasp there"
+            f"no surface in the object's box (nothing in it is {cfg.opacity:.0%} opaque seen "
+            "from outside): nothing to grasp there"
         )
     # close the grid's faces so a surface cut by the grid edge is still closed
     padded = np.pad(volume.values, 1, constant_values=0.0)
-    verts, _, _, _ = marching_cubes(padded, level=cfg.level, spacing=(cfg.voxel_m,) * 3)
+    verts, _, _, _ = marching_cubes(padded, level=level, spacing=(cfg.voxel_m,) * 3)
     local = verts - cfg.voxel_m + volume.origin
     normals = volume.outward_normals(local)
     ok = np.linalg.norm(normals, axis=-1) > 0.5
-    return Surface(volume.to_world(local[ok]), normals[ok] @ box.rotation.T, volume)
+    return Surface(volume.to_world(local[ok]), normals[ok] @ box.rotation.T, volume, level)
