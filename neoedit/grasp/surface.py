@@ -32,10 +32,12 @@ DensityFn = Callable[[torch.Tensor], torch.Tensor]
 class SurfaceConfig:
     voxel_m: float = 0.003
     """Grid spacing of the density samples."""
-    opacity: float = 0.5
+    opacity: float = 0.3
     """A point is inside the object when whatever is in front of it, seen from above and
     from the four sides (along the box's axes), is at least this opaque; the surface is
-    where that crosses this value."""
+    where that crosses this value. Measured on NEO-Sim's assembly pre scan, whose blue cube
+    is fog of 12-40 /m behind faces of 45-105 /m: at 0.5 its solid is still holed and no
+    grasp survives, at 0.3 it is grasped across its faces (4.5-4.9 cm of 5.3 cm)."""
     margin_m: float = 0.015
     """The grid covers the object's box grown by this much (sides and top)."""
     above_support_m: float = 0.004
