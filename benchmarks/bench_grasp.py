@@ -163,6 +163,8 @@ def main() -> None:
         help="bench_assembly.py's NEO scene store (step_0 .. step_4)",
     )
     args = parser.parse_args()
+    if args.candidates < 1:
+        parser.error("--candidates must be >= 1")
     print("command: python " + " ".join(shlex.quote(a) for a in sys.argv))
     print(f"machine: {platform.machine()}, {platform.system()}, {time.strftime('%Y-%m-%d %H:%M')}")
     args.out.mkdir(parents=True, exist_ok=True)

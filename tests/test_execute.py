@@ -11,6 +11,7 @@ from neoedit.errors import NeoError
 from neoedit.geometry import motion_about
 from neoedit.sim.execute import (
     ExecuteConfig,
+    PandaArm,
     execute_move,
     placement_error,
     reach_error,
@@ -77,12 +78,14 @@ def test_the_reach_check_predicts_the_motion_and_leaves_the_world_as_it_was():
         centre = np.asarray(world.object_box("cube").center_m)
         transform = motion_about(centre, np.array([0.05, 0.1, 0.0]), 30.0)
         before = world.object_pose("cube")
+        joints = PandaArm(world, ExecuteConfig()).joints()
         err, _ = reach_error(world, _top_down(world), transform, ExecuteConfig())
         assert err < ExecuteConfig().reach_tolerance_m
         far = motion_about(centre, np.array([0.9, 0.0, 0.0]), 0.0)  # carried 1.4 m from the base
         err, stage = reach_error(world, _top_down(world), far, ExecuteConfig())
         assert err > 0.1 and stage in ("carry", "place", "retreat")
         np.testing.assert_array_equal(world.object_pose("cube"), before)
+        np.testing.assert_allclose(PandaArm(world, ExecuteConfig()).joints(), joints, atol=1e-9)
         ex = execute_move(world, "cube", _top_down(world), transform, ExecuteConfig())
         assert ex.success, ex.cause  # the arm was put back home: the motion still works
 

@@ -353,12 +353,16 @@ def test_regions_only_distillation_draws_and_compares_only_through_the_boxes(
     patch = patched.add_patch([box])
     before = patch.encoding.table.detach().clone()
     cfg = DistillConfig(
-        field_steps=3, render_steps=0, rays=256, focus=0.75, local_rows=False, regions_only=True
-    )
+        field_steps=3, render_steps=0, rays=256, focus=0.75, box_points=0, local_rows=False,
+        regions_only=True,
+    )  # fmt: skip
     distill([(patch, 0.0)], scene.grid, Recording(), scene.grid, pool, [box],
             scene.meta.render, scene.background, cfg, view=patched)  # fmt: skip
     assert drawn == [(192, 1.0)] * 3
-    pts = torch.cat(compared)
-    assert len(pts) > 3 * 1000 and bool(points_in_box(pts, box).all())
+    pts = torch.cat(compared)  # the rays' own samples only (no uniform box points)
+    assert len(pts) > 3 * 192 and bool(points_in_box(pts, box).all())
     assert not torch.equal(patch.encoding.table, before)  # the patch learnt
     assert all(torch.equal(base.state_dict()[k], v) for k, v in base_state.items())
+    with pytest.raises(ValueError, match="regions_only needs a patch student"):
+        distill(patch, scene.grid, teacher, scene.grid, pool, [box],
+                scene.meta.render, scene.background, cfg)  # fmt: skip

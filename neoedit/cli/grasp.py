@@ -61,6 +61,10 @@ class GraspCommand:
             raise NeoError("--grasp.approaches and --grasp.contacts must be >= 1")
         if not (0.0005 <= self.grasp.surface.voxel_m <= 0.02):
             raise NeoError("--grasp.surface.voxel-m must be in [0.0005, 0.02] m")
+        if not (0.0 < self.grasp.surface.opacity < 1.0):
+            raise NeoError("--grasp.surface.opacity must be in (0, 1)")
+        if not self.grasp.collision_density > 0:
+            raise NeoError("--grasp.collision-density must be > 0 [1/m]")
         out = self.out or Path("outputs/grasp") / Path(self.scene).name
         check_writable_output(out, [self.scene], "grasp", self.overwrite)
         if self.json is not None:

@@ -151,21 +151,30 @@ class SimExecuteCommand:
     overwrite: bool = False
 
     def run(self) -> None:
-        from neoedit.sim.execute import ExecuteConfig, execute_action, reachable_first
+        from neoedit.sim.execute import (
+            ExecuteConfig,
+            check_grasp,
+            execute_action,
+            reachable_first,
+        )
 
         try:
             raw = json.loads(self.grasp.read_text())
         except (OSError, ValueError) as e:
             raise NeoError(f"{self.grasp}: cannot read a grasp: {e}") from None
         grasps = raw if isinstance(raw, list) else [raw]
-        if not grasps or not all(
-            isinstance(g, dict) and {"position_m", "rotation"} <= g.keys() for g in grasps
-        ):
-            raise NeoError(f"{self.grasp}: expected grasps with position_m and rotation")
+        if not grasps or not all(isinstance(g, dict) for g in grasps):
+            raise NeoError(f"{self.grasp}: expected a grasp or a list of grasps (JSON objects)")
+        for k, g in enumerate(grasps):
+            try:
+                check_grasp(g)
+            except NeoError as e:
+                raise NeoError(f"{self.grasp}, grasp {k + 1}: {e}") from None
         check_writable_output(self.out, [self.scene, self.grasp], "execution", self.overwrite)
         cfg = ExecuteConfig()
-        pick, err, stage = reachable_first(self.scene, self.action, grasps, cfg)[0]
+        pick = 0
         if len(grasps) > 1:
+            pick, err, stage = reachable_first(self.scene, self.action, grasps, cfg)[0]
             console.print(
                 f"executing grasp {pick + 1} of {len(grasps)} (reach check: "
                 f"{err * 100:.1f} cm off at worst, at {stage or 'no stage'})"

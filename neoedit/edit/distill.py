@@ -189,7 +189,12 @@ def distill(
     rows: list[torch.Tensor] = []  # the current step's row mask (read by the gradient hook)
 
     n_rays, focus = cfg.rays, cfg.focus
-    if cfg.regions_only and len(pool.focus):
+    if cfg.regions_only:
+        if view is None or not boxes or not len(pool.focus) or cfg.focus <= 0:
+            raise ValueError(
+                "regions_only needs a patch student (a view holding it), edit boxes and "
+                "rays through them"
+            )
         n_rays, focus = max(1, int(round(cfg.rays * cfg.focus))), 1.0
 
     def allow(points: torch.Tensor) -> None:

@@ -96,10 +96,11 @@ class MoveConfig:
     only')."""
     student: str = "patch"
     """'patch': the student is two new patches of the field, initialised from the current
-    weights: one owns the source boxes with the support under them (its MLPs frozen: the
-    hole needs only table rows), one owns the target boxes (its MLPs learn too: a new
-    object stands there); the rest of the scene stays bit-identical, so a chain of edits
-    cannot wash it out. 'field': the whole field is the student (updates limited to the table rows that
+    weights: one owns the source boxes with the support under them (its MLPs learn at
+    ``distill.mlp_lr_factor``, 0 by default: the hole needs only table rows), one owns the
+    target boxes (its MLPs learn at ``distill.patch_mlp_lr_factor``: a new object stands
+    there); the rest of the scene stays bit-identical, so a chain of edits cannot wash it
+    out. 'field': the whole field is the student (updates limited to the table rows that
     samples in the boxes read; earlier patches are baked in). The Seal-3D-style baseline
     always distils the whole field, as Seal-3D does."""
 
@@ -309,8 +310,9 @@ def _distil_move(
     cfg: MoveConfig,
     inpainter: Inpainter | None,
 ) -> dict[str, float]:
-    """Build the teacher, distil it into ``child.field`` (a plain radiance field initialised
-    from the parent's weights) and refresh ``child.grid``."""
+    """Build the teacher, distil it into ``child.field`` (two new patches of the parent's
+    field, or with ``student='field'`` a plain radiance field initialised from the parent's
+    weights) and refresh ``child.grid``."""
     t = time.perf_counter()
     teacher, timings = _teacher(parent, sources, targets, transforms, cfg, inpainter)
     timings["teacher_s"] = round(time.perf_counter() - t, 2)
@@ -343,6 +345,9 @@ def _distil_move(
             dcfg, field_steps=dcfg.field_steps + dcfg.render_steps, render_steps=0
         )
     patch_mode = cfg.student == "patch" and cfg.method == "neo"
+    # a patch student is its parent, bit for bit, outside its boxes: only rays through them
+    # teach it (a whole-field student must also be held where it is everywhere else)
+    dcfg = dataclasses.replace(dcfg, regions_only=patch_mode)
     students: RadianceField | list[tuple[RadianceField, float]]
     if patch_mode:
         # two patches: the source regions (MLPs frozen, as the inpainted hole needs only the
@@ -353,8 +358,7 @@ def _distil_move(
             (patched.add_patch(regions[: len(sources)]), dcfg.mlp_lr_factor),
             (patched.add_patch(list(targets)), dcfg.patch_mlp_lr_factor),
         ]
-        # the rest of the scene is the parent's, bit for bit: only rays through the boxes teach
-        dcfg = dataclasses.replace(dcfg, local_rows=False, regions_only=True)
+        dcfg = dataclasses.replace(dcfg, local_rows=False)
     else:
         students = copy.deepcopy(_base(parent.field))
     timings["setup_s"] = round(time.perf_counter() - t, 2)

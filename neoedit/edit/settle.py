@@ -38,7 +38,8 @@ def settle(scene: Scene, cfg: DistillConfig | None = None) -> dict[str, float]:
     if not boxes:
         return {}
     t = time.perf_counter()
-    cfg = dataclasses.replace(cfg or DistillConfig(), local_rows=False)
+    # the patch is the field, bit for bit, outside the pending boxes: only rays through them teach
+    cfg = dataclasses.replace(cfg or DistillConfig(), local_rows=False, regions_only=True)
     shown = Scene(copy.deepcopy(scene.field), scene.grid, scene.meta)
     view, cut = shown.renderable()  # built now: clearing the records below does not change it
     teacher = SuppressedField(view, cut) if cut else view  # a cut box shows nothing

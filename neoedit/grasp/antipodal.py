@@ -4,9 +4,9 @@ scene and a ranking by antipodal quality, clearance and approach angle.
 1. Contacts: surface points of the object (marching cubes, in its box, of how opaque the
    object is in front of each point seen from outside: :mod:`neoedit.grasp.surface`).
 2. Pairs: from a contact p1 with outward normal n1, march inward along -n1 through the
-   density until it exits the object at p2 (normal n2). The pair is antipodal when both
-   normals lie in the friction cone of the closing axis (half-angle atan(mu)) and the width
-   fits the gripper.
+   object (where it is opaque seen from outside) until it exits at p2 (normal n2). The pair
+   is antipodal when both normals lie in the friction cone of the closing axis (half-angle
+   atan(mu)) and the width fits the gripper.
 3. Poses: several approach directions perpendicular to the closing axis; a pose survives if
    the fingers, opened a little wider than the object, and the palm hold no density of the
    *scene* (table, neighbours, the object itself elsewhere) and no point inside the object's
@@ -96,7 +96,8 @@ def antipodal_pairs(surface: Surface, cfg: GraspConfig) -> tuple[np.ndarray, ...
     values = vol.sample(local)
     inside = values > level
     # the first sample where the ray, having entered the object, leaves it; the exit is
-    # placed where the density crosses the level between that sample and the one before
+    # placed where the opacity seen from outside crosses the surface level between that
+    # sample and the one before
     entered = np.maximum.accumulate(inside, axis=1)
     exits = entered & ~inside
     exits[:, 0] = False
@@ -108,7 +109,7 @@ def antipodal_pairs(surface: Surface, cfg: GraspConfig) -> tuple[np.ndarray, ...
     width = ts[k - 1] + frac * step
     p2 = p1 - width[:, None] * n1
     # an exit on the grid's faces (its floor above the support, its sides) is where the
-    # sampled density ends, not the object: no contact there
+    # sampled field ends, not the object: no contact there
     p2_local = vol.to_local(p2)
     far_end = vol.origin + vol.voxel_m * (np.asarray(vol.values.shape) - 1)
     has &= ((p2_local > vol.origin + vol.voxel_m) & (p2_local < far_end - vol.voxel_m)).all(-1)

@@ -72,7 +72,8 @@ class Volume:
         return np.where(norm > 1e-9, -g / np.maximum(norm, 1e-12), 0.0)
 
     def sample(self, local: np.ndarray, values: np.ndarray | None = None) -> np.ndarray:
-        """Trilinear density (or ``values``) at local points (..., 3); 0 outside the grid."""
+        """Trilinear ``self.values`` (or ``values``) at local points (..., 3); 0 outside the
+        grid."""
         idx = (local.reshape(-1, 3) - self.origin) / self.voxel_m
         grid = self.values if values is None else values
         out = map_coordinates(grid, idx.T, order=1, mode="constant", cval=0.0)
@@ -138,7 +139,8 @@ def object_surface(density: DensityFn, box: OrientedBox, cfg: SurfaceConfig) -> 
     if float(volume.values.max()) <= level:
         raise NeoError(
             f"no surface in the object's box (nothing in it is {cfg.opacity:.0%} opaque seen "
-            "from outside): nothing to grasp there"
+            f"from outside; at most {1 - np.exp(-volume.values.max()):.0%}): nothing to grasp "
+            "there"
         )
     # close the grid's faces so a surface cut by the grid edge is still closed
     padded = np.pad(volume.values, 1, constant_values=0.0)

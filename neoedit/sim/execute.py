@@ -78,6 +78,8 @@ class PandaArm:
             if pb.getJointInfo(self.robot, j, physicsClientId=self.c)[2] != pb.JOINT_FIXED
         ]
         self.arm = [j for j in movable if j not in self.fingers]
+        info = [pb.getJointInfo(self.robot, j, physicsClientId=self.c) for j in self.arm]
+        self.limits = np.array([(i[8], i[9]) for i in info])
         self.home = self.joints()
         for f in self.fingers:
             pb.changeDynamics(self.robot, f, lateralFriction=1.2, physicsClientId=self.c)
@@ -92,14 +94,21 @@ class PandaArm:
         )
         return np.array(s[4]), np.array(pb.getMatrixFromQuaternion(s[5])).reshape(3, 3)
 
-    def _ik(self, pos: np.ndarray, rot: np.ndarray) -> np.ndarray:
+    def ik(self, pos: np.ndarray, rot: np.ndarray) -> np.ndarray:
+        """Joint angles that put the hand at a pose (from the current joints), within the
+        joints' limits."""
         from neoedit.sim.world import _matrix_to_quaternion
 
         q = pb.calculateInverseKinematics(
             self.robot, self.ee, pos.tolist(), _matrix_to_quaternion(rot),
             maxNumIterations=300, residualThreshold=1e-5, physicsClientId=self.c,
         )  # fmt: skip
-        return np.asarray(q[: len(self.arm)])
+        return np.clip(np.asarray(q[: len(self.arm)]), self.limits[:, 0], self.limits[:, 1])
+
+    def set_joints(self, q: np.ndarray) -> None:
+        """Put the arm at ``q`` at once (no motion, no physics step)."""
+        for j, qj in zip(self.arm, q, strict=True):
+            pb.resetJointState(self.robot, j, qj, physicsClientId=self.c)
 
     def fingers_to(self, opening_m: float, force: float = 40.0) -> None:
         for f in self.fingers:
@@ -131,7 +140,7 @@ class PandaArm:
         return float(np.linalg.norm(self.ee_pose()[0] - pos)), sorted(touched)
 
     def _drive(self, pos: np.ndarray, rot: np.ndarray, seconds: float) -> set[int]:
-        start, goal = self.joints(), self._ik(pos, rot)
+        start, goal = self.joints(), self.ik(pos, rot)
         steps = max(1, int(seconds * PHYSICS_HZ))
         touched: set[int] = set()
         for k in range(1, steps + 1):
@@ -153,13 +162,25 @@ class PandaArm:
         )
 
     def reset_home(self) -> None:
-        for j, q in zip(self.arm, self.home, strict=True):
-            pb.resetJointState(self.robot, j, q, physicsClientId=self.c)
+        self.set_joints(self.home)
         pb.setJointMotorControlArray(
             self.robot, self.arm, pb.POSITION_CONTROL, targetPositions=self.home.tolist(),
             physicsClientId=self.c,
         )  # fmt: skip
         self.fingers_to(0.04)
+
+
+def check_grasp(grasp: dict[str, Any]) -> None:
+    """A clear error for a grasp that is not a position and a 3x3 rotation."""
+    try:
+        pos = np.asarray(grasp["position_m"], dtype=np.float64)
+        rot = np.asarray(grasp["rotation"], dtype=np.float64)
+    except (KeyError, TypeError, ValueError):
+        raise NeoError("a grasp needs position_m (3 numbers) and rotation (3x3)") from None
+    if pos.shape != (3,) or not np.isfinite(pos).all():
+        raise NeoError("the grasp's position_m must be 3 finite numbers")
+    if rot.shape != (3, 3) or not np.allclose(rot.T @ rot, np.eye(3), atol=1e-3):
+        raise NeoError("the grasp's rotation must be a 3x3 orthonormal matrix")
 
 
 def hand_pose(grasp: dict[str, Any], cfg: ExecuteConfig) -> tuple[np.ndarray, np.ndarray]:
@@ -178,7 +199,8 @@ def _hand_for(
     less wrist turn from where the hand is (two symmetric fingers: the same grasp)."""
     pos, rot = hand_pose(grasp, cfg)
     flip = np.diag([-1.0, -1.0, 1.0])
-    if np.trace(arm.ee_pose()[1].T @ (rot @ flip)) > np.trace(arm.ee_pose()[1].T @ rot):
+    now = arm.ee_pose()[1]
+    if np.trace(now.T @ (rot @ flip)) > np.trace(now.T @ rot):
         rot = rot @ flip
     return pos, rot
 
@@ -204,23 +226,22 @@ def reach_error(
     world: SimWorld, grasp: dict[str, Any], transform: np.ndarray, cfg: ExecuteConfig
 ) -> tuple[float, str]:
     """Kinematic check, before any motion: the largest distance between a waypoint of the
-    pick-and-place and where inverse kinematics (chained from home, as the motion goes)
+    pick-and-place and where inverse kinematics (chained from the arm's joints, as the motion goes)
     puts the hand, and the stage where it is largest. No physics step is taken and the arm
-    is put back home, so the world is as it was."""
+    is put back where it was."""
+    check_grasp(grasp)
     arm = PandaArm(world, cfg)
     pos, rot = _hand_for(arm, grasp, cfg)
     worst, where = 0.0, ""
     try:
         for stage, p, r in _waypoints(pos, rot, transform, cfg):
             for _ in range(3):  # refine from the last solution, as the waypoints do
-                for j, q in zip(arm.arm, arm._ik(p, r), strict=True):
-                    pb.resetJointState(arm.robot, j, q, physicsClientId=arm.c)
+                arm.set_joints(arm.ik(p, r))
             err = float(np.linalg.norm(arm.ee_pose()[0] - p))
-            if err > worst:
+            if not err <= worst:  # a NaN counts as the worst
                 worst, where = err, stage
     finally:
-        for j, q in zip(arm.arm, arm.home, strict=True):
-            pb.resetJointState(arm.robot, j, q, physicsClientId=arm.c)
+        arm.set_joints(arm.home)
     return worst, where
 
 
@@ -327,11 +348,13 @@ def reachable_first(
     order is kept within each group). The planner knows the scene, not the robot: this is
     where the robot's reach comes in."""
     spec, _, transform = _scene_action(scene_dir, action)
+    for g in grasps:
+        check_grasp(g)
     with SimWorld(spec) as world:
         for a in spec.actions[: action - 1]:
             world.apply(a)
         errors = [(i, *reach_error(world, g, transform, cfg)) for i, g in enumerate(grasps)]
-    return sorted(errors, key=lambda e: (e[1] > cfg.reach_tolerance_m, e[0]))
+    return sorted(errors, key=lambda e: (not e[1] <= cfg.reach_tolerance_m, e[0]))
 
 
 def execute_action(
@@ -349,9 +372,7 @@ def execute_action(
     from neoedit.utils.io import atomic_directory, atomic_write_json
 
     spec, todo, transform = _scene_action(scene_dir, action)
-    rot = np.asarray(grasp.get("rotation"), dtype=np.float64)
-    if rot.shape != (3, 3) or not np.allclose(rot.T @ rot, np.eye(3), atol=1e-3):
-        raise NeoError("the grasp's rotation must be a 3x3 orthonormal matrix")
+    check_grasp(grasp)
     with (
         atomic_directory(Path(out), overwrite=overwrite, kind="execution") as tmp,
         SimWorld(spec) as world,
