@@ -152,6 +152,38 @@ def _decay(steps: int, step: int) -> float:
     return 0.1 ** (step / max(steps, 1))
 
 
+def _trainable_parts(
+    student: RadianceField | Sequence[tuple[RadianceField, float]],
+    cfg: DistillConfig,
+    view: Field | None,
+) -> list[tuple[RadianceField, float]]:
+    """The student's parts with their MLP rate factors, gradients switched on (the MLPs'
+    off where they are frozen)."""
+    parts = [(student, cfg.mlp_lr_factor)] if isinstance(student, RadianceField) else list(student)
+    if not parts or (len(parts) > 1 and (view is None or cfg.local_rows)):
+        raise ValueError("several students need a view holding them and local_rows off")
+    for part, factor in parts:
+        part.requires_grad_(True)
+        if cfg.freeze_mlp or factor == 0:
+            for name, p in part.named_parameters():
+                p.requires_grad_(name.startswith("encoding."))
+    return parts
+
+
+def _batch(
+    cfg: DistillConfig, pool: RayPool, boxes: list[OrientedBox], view: Field | None
+) -> tuple[int, float]:
+    """(rays per step, share of them drawn through a box)."""
+    if not cfg.regions_only:
+        return cfg.rays, cfg.focus
+    if view is None or not boxes or not len(pool.focus) or cfg.focus <= 0:
+        raise ValueError(
+            "regions_only needs a patch student (a view holding it), edit boxes and rays "
+            "through them"
+        )
+    return max(1, int(round(cfg.rays * cfg.focus))), 1.0
+
+
 def distill(
     student: RadianceField | Sequence[tuple[RadianceField, float]],
     student_grid: OccupancyGrid,
@@ -172,30 +204,15 @@ def distill(
     ``student`` may also be several parts of ``view`` trained together, each given with the
     fraction of ``lr`` its MLPs learn at (0 freezes them); a plain field uses
     ``cfg.mlp_lr_factor``."""
-    parts = [(student, cfg.mlp_lr_factor)] if isinstance(student, RadianceField) else list(student)
-    if not parts or (len(parts) > 1 and (view is None or cfg.local_rows)):
-        raise ValueError("several students need a view holding them and local_rows off")
+    parts = _trainable_parts(student, cfg, view)
     student = parts[0][0]
     device = student.aabb.device
     seen: Field = student if view is None else view
-    for part, factor in parts:
-        part.requires_grad_(True)
-        if cfg.freeze_mlp or factor == 0:
-            for name, p in part.named_parameters():
-                p.requires_grad_(name.startswith("encoding."))
     gen = torch.Generator().manual_seed(cfg.seed)
     ray_gen = torch.Generator(device=device).manual_seed(cfg.seed)
     boxes = list(boxes)
     rows: list[torch.Tensor] = []  # the current step's row mask (read by the gradient hook)
-
-    n_rays, focus = cfg.rays, cfg.focus
-    if cfg.regions_only:
-        if view is None or not boxes or not len(pool.focus) or cfg.focus <= 0:
-            raise ValueError(
-                "regions_only needs a patch student (a view holding it), edit boxes and "
-                "rays through them"
-            )
-        n_rays, focus = max(1, int(round(cfg.rays * cfg.focus))), 1.0
+    n_rays, focus = _batch(cfg, pool, boxes, view)
 
     def allow(points: torch.Tensor) -> None:
         """Let this step update only the rows read by ``points`` that lie in a box."""

@@ -43,7 +43,7 @@ from neoedit.fields.patched import PatchedField, edit_region
 from neoedit.fields.radiance import Field, RadianceField
 from neoedit.geometry import OrientedBox, is_rigid
 from neoedit.geometry.box import box_iou_3d
-from neoedit.rendering.occupancy import cells_in_boxes, refresh_grid
+from neoedit.rendering.occupancy import OccupancyGrid, cells_in_boxes, refresh_grid
 from neoedit.scene import Scene
 from neoedit.utils.validate import check_edit_boxes
 
@@ -301,6 +301,46 @@ def _base(field_: Field) -> RadianceField:
     return field_.base if isinstance(field_, PatchedField) else field_  # type: ignore[return-value]
 
 
+def _distil_config(cfg: MoveConfig, patch_mode: bool) -> DistillConfig:
+    """The distillation schedule of ``cfg``'s method and ablation."""
+    dcfg = cfg.seal3d if cfg.method == "seal3d" else cfg.distill
+    if cfg.method == "seal3d":
+        dcfg = dataclasses.replace(dcfg, freeze_mlp=True)
+    if cfg.field_only:
+        dcfg = dataclasses.replace(
+            dcfg, field_steps=dcfg.field_steps + dcfg.render_steps, render_steps=0
+        )
+    # a patch student is its parent, bit for bit, outside its boxes: only rays through them
+    # teach it, and no row mask is needed (a whole-field student must also be held where it
+    # is everywhere else)
+    if patch_mode:
+        return dataclasses.replace(dcfg, regions_only=True, local_rows=False)
+    return dataclasses.replace(dcfg, regions_only=False)
+
+
+def _seal3d_distil(
+    student: RadianceField,
+    student_grid: OccupancyGrid,
+    teacher: Field,
+    teacher_grid: OccupancyGrid,
+    pool: RayPool,
+    regions: list[OrientedBox],
+    parent: Scene,
+    dcfg: DistillConfig,
+) -> dict[str, float]:
+    """Seal-3D's two stages: a local one (MLPs frozen, points in and around the boxes),
+    then a global one (all weights, rendered RGB + depth)."""
+    local = dataclasses.replace(dcfg, render_steps=0)
+    glob = dataclasses.replace(dcfg, field_steps=0, freeze_mlp=False)
+    grown = [b.grown(0.02) for b in regions]
+    render, bg = parent.meta.render, parent.background
+    losses = distill(student, student_grid, teacher, teacher_grid, pool, grown, render, bg, local)
+    losses.update(
+        distill(student, student_grid, teacher, teacher_grid, pool, regions, render, bg, glob)
+    )
+    return losses
+
+
 def _distil_move(
     parent: Scene,
     child: Scene,
@@ -337,17 +377,8 @@ def _distil_move(
         views = cfg.remove.views
         virtual = concat_cameras([virtual_cameras(b, scan, views) for b in [*sources, *targets]])
     pool = RayPool(scan, virtual, regions, parent.field.aabb.device, cfg.distill.seed)
-    dcfg = cfg.seal3d if cfg.method == "seal3d" else cfg.distill
-    if cfg.method == "seal3d":
-        dcfg = dataclasses.replace(dcfg, freeze_mlp=True)
-    if cfg.field_only:
-        dcfg = dataclasses.replace(
-            dcfg, field_steps=dcfg.field_steps + dcfg.render_steps, render_steps=0
-        )
     patch_mode = cfg.student == "patch" and cfg.method == "neo"
-    # a patch student is its parent, bit for bit, outside its boxes: only rays through them
-    # teach it (a whole-field student must also be held where it is everywhere else)
-    dcfg = dataclasses.replace(dcfg, regions_only=patch_mode)
+    dcfg = _distil_config(cfg, patch_mode)
     students: RadianceField | list[tuple[RadianceField, float]]
     if patch_mode:
         # two patches: the source regions (MLPs frozen, as the inpainted hole needs only the
@@ -358,37 +389,16 @@ def _distil_move(
             (patched.add_patch(regions[: len(sources)]), dcfg.mlp_lr_factor),
             (patched.add_patch(list(targets)), dcfg.patch_mlp_lr_factor),
         ]
-        dcfg = dataclasses.replace(dcfg, local_rows=False)
     else:
         students = copy.deepcopy(_base(parent.field))
     timings["setup_s"] = round(time.perf_counter() - t, 2)
     t = time.perf_counter()
-    if cfg.method == "seal3d":
-        # local stage: MLPs frozen, points in and around the boxes; global stage: all weights
-        local = dataclasses.replace(dcfg, render_steps=0)
-        glob = dataclasses.replace(dcfg, field_steps=0, freeze_mlp=False)
-        grown = [b.grown(0.02) for b in regions]
-        losses = distill(
-            students, student_grid, teacher, teacher_grid, pool, grown,
-            parent.meta.render, parent.background, local,
-        )  # fmt: skip
-        losses.update(
-            distill(
-                students,
-                student_grid,
-                teacher,
-                teacher_grid,
-                pool,
-                regions,
-                parent.meta.render,
-                parent.background,
-                glob,
-            )  # fmt: skip
-        )
+    args = (student_grid, teacher, teacher_grid, pool)
+    if cfg.method == "seal3d" and isinstance(students, RadianceField):  # always a whole field
+        losses = _seal3d_distil(students, *args, regions, parent, dcfg)
     else:
         losses = distill(
-            students, student_grid, teacher, teacher_grid, pool, regions,
-            parent.meta.render, parent.background, dcfg,
+            students, *args, regions, parent.meta.render, parent.background, dcfg,
             view=child.field if patch_mode else None,
         )  # fmt: skip
     timings["distill_s"] = round(time.perf_counter() - t, 2)
