@@ -39,6 +39,10 @@ class ExecuteConfig:
     grip_force_n: float = 60.0
     reach_tolerance_m: float = 0.015
     """An arm that ends farther than this from a waypoint could not reach it."""
+    coupled_fingers: bool = True
+    """The fingers move as one, mirrored about the hand's axis, as the Franka Hand's do (a
+    gear constraint); off: each finger is driven on its own, so the first to touch pushes
+    the object until the other meets it."""
 
 
 @dataclass
@@ -83,6 +87,15 @@ class PandaArm:
         self.home = self.joints()
         for f in self.fingers:
             pb.changeDynamics(self.robot, f, lateralFriction=1.2, physicsClientId=self.c)
+
+    def couple_fingers(self) -> int:
+        """Mirror the fingers with a gear constraint; returns its id (remove it when done)."""
+        gear = pb.createConstraint(
+            self.robot, self.fingers[0], self.robot, self.fingers[1], pb.JOINT_GEAR,
+            [1, 0, 0], [0, 0, 0], [0, 0, 0], physicsClientId=self.c,
+        )  # fmt: skip
+        pb.changeConstraint(gear, gearRatio=-1, erp=0.1, maxForce=50, physicsClientId=self.c)
+        return gear
 
     def joints(self) -> np.ndarray:
         states = pb.getJointStates(self.robot, self.arm, physicsClientId=self.c)
@@ -250,6 +263,22 @@ def execute_move(
 ) -> Execution:
     """Pick ``name`` with ``grasp``, carry it by the world ``transform`` and place it."""
     arm = PandaArm(world, cfg)
+    gear = arm.couple_fingers() if cfg.coupled_fingers else None
+    try:
+        return _pick_and_place(world, arm, name, grasp, transform, cfg)
+    finally:
+        if gear is not None:
+            pb.removeConstraint(gear, physicsClientId=world.client)
+
+
+def _pick_and_place(
+    world: SimWorld,
+    arm: PandaArm,
+    name: str,
+    grasp: dict[str, Any],
+    transform: np.ndarray,
+    cfg: ExecuteConfig,
+) -> Execution:
     body = world.bodies[name]
     others = {world.table} | {b for n, b in world.bodies.items() if n != name}
     before = world.object_pose(name)
