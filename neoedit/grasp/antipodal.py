@@ -26,7 +26,7 @@ import torch
 
 from neoedit.fields.suppressed import SuppressedField
 from neoedit.geometry import OrientedBox
-from neoedit.grasp.gripper import GripperConfig, box_lattice, gripper_boxes
+from neoedit.grasp.gripper import GripperConfig, box_lattice, gripper_boxes, opening
 from neoedit.grasp.surface import DensityFn, Surface, SurfaceConfig, Volume, object_surface
 from neoedit.scene import Scene
 
@@ -68,12 +68,15 @@ class Grasp:
     clearance: float
     approach_deg: float
     """Angle between the approach and straight down."""
+    opening_m: float
+    """How far apart the finger pads were checked on the approach (open this far)."""
 
     def to_dict(self) -> dict[str, Any]:
         return {
             "position_m": np.round(self.position_m, 5).tolist(),
             "rotation": np.round(self.rotation, 6).tolist(),
             "width_m": round(float(self.width_m), 5),
+            "opening_m": round(float(self.opening_m), 5),
             "score": round(float(self.score), 4),
             "quality": round(float(self.quality), 4),
             "clearance": round(float(self.clearance), 4),
@@ -219,7 +222,8 @@ def plan_grasps(
         for i, c in zip(keep, clearance, strict=True):
             score = 0.5 * qual[i] + 0.3 * vertical[i] + 0.2 * c
             angle = math.degrees(math.acos(float(np.clip(vertical[i], -1, 1))))
-            found.append(Grasp(centre[i], rot[i], width[i], score, qual[i], c, angle))
+            open_m = opening(cfg.gripper, float(width[i]))
+            found.append(Grasp(centre[i], rot[i], width[i], score, qual[i], c, angle, open_m))
         if len(found) >= 8 * top_k:
             break
     found.sort(key=lambda g: -g.score)

@@ -28,14 +28,20 @@ class GripperConfig:
     """How far the fingertips reach beyond the grasp centre."""
     palm_size_m: tuple[float, float, float] = (0.2, 0.06, 0.07)
     """Palm (hand body) size along closing, finger and approach axes."""
-    open_margin_m: float = 0.01
-    """The fingers approach opened this much wider than the object (each side)."""
+    open_margin_m: float = 0.015
+    """The fingers approach opened this much wider than the object (each side; the
+    executor opens them as far as the planner checked, ``opening_m``)."""
+
+
+def opening(cfg: GripperConfig, width_m: float) -> float:
+    """How far apart the finger pads are on the approach to an object ``width_m`` wide."""
+    return min(width_m + 2 * cfg.open_margin_m, cfg.max_width_m)
 
 
 def gripper_boxes(cfg: GripperConfig, width_m: float) -> list[tuple[np.ndarray, np.ndarray]]:
     """(centre (3,), half extents (3,)) in the grasp frame of the two fingers (opened to
-    ``width_m`` + margins) and the palm."""
-    open_w = min(width_m + 2 * cfg.open_margin_m, cfg.max_width_m)
+    :func:`opening`) and the palm."""
+    open_w = opening(cfg, width_m)
     half_f = np.array([cfg.finger_thickness_m, cfg.finger_width_m, cfg.finger_length_m]) / 2
     z_f = cfg.tip_inset_m - cfg.finger_length_m / 2
     x_f = open_w / 2 + cfg.finger_thickness_m / 2

@@ -17,6 +17,7 @@ import numpy as np
 import pybullet as pb
 
 from neoedit.errors import NeoError
+from neoedit.grasp.gripper import GripperConfig, opening
 from neoedit.sim.spec import ActionSpec, SceneSpec
 from neoedit.sim.world import PHYSICS_HZ, SimWorld
 
@@ -194,6 +195,10 @@ def check_grasp(grasp: dict[str, Any]) -> None:
         raise NeoError("the grasp's position_m must be 3 finite numbers")
     if rot.shape != (3, 3) or not np.allclose(rot.T @ rot, np.eye(3), atol=1e-3):
         raise NeoError("the grasp's rotation must be a 3x3 orthonormal matrix")
+    widest = GripperConfig().max_width_m
+    for key in ("width_m", "opening_m"):
+        if key in grasp and not (isinstance(grasp[key], int | float) and 0 < grasp[key] <= widest):
+            raise NeoError(f"the grasp's {key} must be a number in (0, {widest}] m")
 
 
 def hand_pose(grasp: dict[str, Any], cfg: ExecuteConfig) -> tuple[np.ndarray, np.ndarray]:
@@ -299,8 +304,9 @@ def _pick_and_place(
             return False
         return True
 
-    opening = min(float(grasp.get("width_m", 0.06)) + 0.02, 0.08)  # as the planner checked
-    arm.fingers_to(opening)
+    # as wide as the planner checked (a grasp written without it: the planner's default)
+    width = float(grasp.get("width_m", 0.06))
+    arm.fingers_to(float(grasp.get("opening_m", opening(GripperConfig(), width))))
     if not step("reach", others | {body}) or not step("approach", others):
         return ex
     ex.stage = "close"
