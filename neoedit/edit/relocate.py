@@ -94,6 +94,11 @@ class MoveConfig:
     field_only: bool = False
     """Distil with stage 1 only, for the whole budget (the ablation 'field distillation
     only')."""
+    distil_source: bool = False
+    """Patch student: distil the source region into a fresh patch too. By default the source
+    region keeps the removal's own patch, which *is* the teacher there (so distilling it
+    again only approximates what the student already can hold exactly), and the
+    distillation's rays all go through the target boxes."""
     student: str = "patch"
     """'patch': the student is two new patches of the field, initialised from the current
     weights: one owns the source boxes with the support under them (its MLPs learn at
@@ -272,14 +277,14 @@ def _teacher(
     transforms: list[np.ndarray],
     cfg: MoveConfig,
     inpainter: Inpainter | None,
-) -> tuple[Field, dict[str, float]]:
-    """The composed teacher S' (every part as it renders, its grid applied) and the
-    timings of building it."""
+) -> tuple[Field, PatchedField | None, dict[str, float]]:
+    """The composed teacher S' (every part as it renders, its grid applied), the parent's
+    field with the removal's patch (None for the baseline) and the timings of building it."""
     moving = MaskedField(parent.field, parent.grid.is_occupied)
     moved = [([g], TransformedField(moving, tf)) for g, tf in zip(targets, transforms, strict=True)]
     if cfg.method == "seal3d":
         empty: Field = EmptyField(parent.field.aabb)
-        return ComposedField(moving, [(sources, empty), *moved]), {}
+        return ComposedField(moving, [(sources, empty), *moved]), None, {}
     # the parent's field (earlier patches included) plus the removal's patch
     removed = Scene(
         copy.deepcopy(parent.field),
@@ -294,7 +299,8 @@ def _teacher(
     region = [edit_region(s, remove_cfg.refine.below_m) for s in sources]
     refresh_grid(removed.grid, removed.field.density, cells_in_boxes(removed.grid, region))
     base = MaskedField(removed.field, removed.grid.is_occupied)
-    return ComposedField(base, moved), {f"inpaint_{k}": v for k, v in timings.items()}
+    timings = {f"inpaint_{k}": v for k, v in timings.items()}
+    return ComposedField(base, moved), removed.patched(), timings
 
 
 def _base(field_: Field) -> RadianceField:
@@ -354,12 +360,15 @@ def _distil_move(
     field, or with ``student='field'`` a plain radiance field initialised from the parent's
     weights) and refresh ``child.grid``."""
     t = time.perf_counter()
-    teacher, timings = _teacher(parent, sources, targets, transforms, cfg, inpainter)
+    teacher, removed, timings = _teacher(parent, sources, targets, transforms, cfg, inpainter)
     timings["teacher_s"] = round(time.perf_counter() - t, 2)
     t = time.perf_counter()
     # edited regions: the boxes, the removal patch's region, earlier patches being baked in
     below = cfg.remove.refine.below_m
     regions = [*(edit_region(s, below) for s in sources), *targets]
+    patch_mode = cfg.student == "patch" and cfg.method == "neo"
+    keep_removal = patch_mode and removed is not None and not cfg.distil_source
+    taught = list(targets) if keep_removal else regions  # what the distillation teaches
     if isinstance(parent.field, PatchedField) and not (
         cfg.student == "patch" and cfg.method == "neo"
     ):  # a whole-field student bakes the earlier patches in
@@ -375,12 +384,20 @@ def _distil_move(
     virtual = None
     if cfg.virtual_views and cfg.method == "neo":
         views = cfg.remove.views
-        virtual = concat_cameras([virtual_cameras(b, scan, views) for b in [*sources, *targets]])
-    pool = RayPool(scan, virtual, regions, parent.field.aabb.device, cfg.distill.seed)
-    patch_mode = cfg.student == "patch" and cfg.method == "neo"
+        around = targets if keep_removal else [*sources, *targets]
+        virtual = concat_cameras([virtual_cameras(b, scan, views) for b in around])
+    pool = RayPool(scan, virtual, taught, parent.field.aabb.device, cfg.distill.seed)
     dcfg = _distil_config(cfg, patch_mode)
     students: RadianceField | list[tuple[RadianceField, float]]
-    if patch_mode:
+    if keep_removal and removed is not None:
+        # the removal's patch is the teacher in the source region: keep it, and distil only
+        # the target boxes into a patch initialised from what renders them in the parent
+        pf = parent.field
+        init = pf.renderer_of(targets) if isinstance(pf, PatchedField) else _base(pf)
+        child.field = copy.deepcopy(removed)
+        patched = child.patched()
+        students = [(patched.add_patch(list(targets), init), dcfg.patch_mlp_lr_factor)]
+    elif patch_mode:
         # two patches: the source regions (MLPs frozen, as the inpainted hole needs only the
         # table's rows) and the target boxes (MLPs learning: a new object stands there)
         child.field = copy.deepcopy(parent.field)
@@ -398,7 +415,7 @@ def _distil_move(
         losses = _seal3d_distil(students, *args, regions, parent, dcfg)
     else:
         losses = distill(
-            students, *args, regions, parent.meta.render, parent.background, dcfg,
+            students, *args, taught, parent.meta.render, parent.background, dcfg,
             view=child.field if patch_mode else None,
         )  # fmt: skip
     timings["distill_s"] = round(time.perf_counter() - t, 2)

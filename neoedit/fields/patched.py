@@ -40,12 +40,9 @@ class PatchedField(ComposedField):
     def patches(self) -> nn.ModuleList:
         return self.parts
 
-    def add_patch(self, region: list[OrientedBox]) -> RadianceField:
-        """Append a patch owning the boxes ``region``, initialised from the field that renders
-        them now (the newest patch owning a corner or the centre of one of them, else the
-        base); returns it (the part an edit trains)."""
-        if not region:
-            raise ValueError("a patch needs at least one box")
+    def renderer_of(self, region: list[OrientedBox]) -> RadianceField:
+        """The part that renders the boxes ``region`` now: the newest patch owning a corner or
+        the centre of one of them, else the base."""
         probe = torch.cat(
             [
                 torch.as_tensor(np.vstack([b.corners(), b.center_m]), dtype=torch.float32)
@@ -54,7 +51,17 @@ class PatchedField(ComposedField):
         ).to(self.aabb.device)
         owners = self.owner(probe)
         source = self.base if bool((owners < 0).all()) else self.parts[int(owners.max())]
-        new: RadianceField = copy.deepcopy(source)  # type: ignore[assignment]
+        return source  # type: ignore[return-value]
+
+    def add_patch(
+        self, region: list[OrientedBox], init: RadianceField | None = None
+    ) -> RadianceField:
+        """Append a patch owning the boxes ``region``, initialised from ``init`` (by default
+        the field that renders them now, :meth:`renderer_of`); returns it (the part an edit
+        trains)."""
+        if not region:
+            raise ValueError("a patch needs at least one box")
+        new: RadianceField = copy.deepcopy(init if init is not None else self.renderer_of(region))
         self.regions.append(list(region))
         self.parts.append(new)
         return new
