@@ -113,7 +113,9 @@ def run_scene(name: str, args: argparse.Namespace, methods: list[str]) -> tuple[
             seconds = scene.meta.train_seconds
         else:
             t0 = time.perf_counter()
-            scene = move(pre, [Motion(found, transform)], config_for(method), action["object"])
+            cfg = config_for(method)
+            cfg.reuse_removal_patch = args.reuse_removal_patch
+            scene = move(pre, [Motion(found, transform)], cfg, action["object"])
             seconds = time.perf_counter() - t0
             save_scene(out, scene)
         metrics = evaluate(scene, post, "test", [source], [target], max_views=args.views)
@@ -186,6 +188,11 @@ def main() -> None:
     )
     parser.add_argument("--train-steps", type=int, default=500, help="pre / oracle budget")
     parser.add_argument("--tag", default="", help="suffix of results/strip files")
+    parser.add_argument(
+        "--reuse-removal-patch",
+        action="store_true",
+        help="NEO's moves keep the removal's patch as the source part (MoveConfig option)",
+    )
     args = parser.parse_args()
     print("command: python " + " ".join(shlex.quote(a) for a in sys.argv))
     print(f"machine: {platform.machine()}, {platform.system()}, {time.strftime('%Y-%m-%d %H:%M')}")

@@ -90,6 +90,39 @@ def test_the_reach_check_predicts_the_motion_and_leaves_the_world_as_it_was():
         assert ex.success, ex.cause  # the arm was put back home: the motion still works
 
 
+def test_solving_a_waypoint_refines_the_inverse_kinematics_and_keeps_the_arm_moving():
+    """A motion solves each waypoint as the reach check does (inverse kinematics refined
+    from its own clipped solution), without disturbing the arm: its joint positions and
+    velocities are what they were."""
+    import pybullet as pb
+
+    with _world() as world:
+        arm = PandaArm(world, ExecuteConfig())
+        for k, j in enumerate(arm.arm):  # an arm in motion
+            pb.resetJointState(arm.robot, j, arm.home[k], 0.1 * (k + 1), physicsClientId=arm.c)
+        states = pb.getJointStates(arm.robot, arm.arm, physicsClientId=arm.c)
+
+        def moving() -> list[tuple[float, float]]:
+            got = pb.getJointStates(arm.robot, arm.arm, physicsClientId=arm.c)
+            return [(st[0], st[1]) for st in got]
+
+        before = moving()
+
+        def error(q: np.ndarray, pos: np.ndarray) -> float:
+            arm.set_joints(q)
+            return float(np.linalg.norm(arm.ee_pose()[0] - pos))
+
+        rot = np.diag([1.0, -1.0, -1.0])  # pointing down
+        for pos in (np.array([-0.1, 0.1, 0.1]), np.array([0.2, -0.15, 0.05])):
+            single, solved = arm.ik(pos, rot), arm.solve(pos, rot)
+            assert moving() == before
+            assert np.all(solved >= arm.limits[:, 0]) and np.all(solved <= arm.limits[:, 1])
+            assert error(solved, pos) <= error(single, pos) + 1e-4
+            for j, st in zip(arm.arm, states, strict=True):
+                pb.resetJointState(arm.robot, j, st[0], st[1], physicsClientId=arm.c)
+        assert error(arm.solve(np.array([-0.1, 0.1, 0.1]), rot), np.array([-0.1, 0.1, 0.1])) < 0.005
+
+
 def test_sim_execute_runs_the_first_grasp_the_arm_reaches(tmp_path, capsys):
     import json
 

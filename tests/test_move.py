@@ -366,3 +366,58 @@ def test_regions_only_distillation_draws_and_compares_only_through_the_boxes(
     with pytest.raises(ValueError, match="regions_only needs a patch student"):
         distill(patch, scene.grid, teacher, scene.grid, pool, [box],
                 scene.meta.render, scene.background, cfg)  # fmt: skip
+
+
+def _fast_move_config(**kw) -> MoveConfig:
+    """``FAST`` as a config, with a short distillation (the structure is under test here)."""
+    cfg = MoveConfig(**kw)
+    cfg.remove.refine.steps, cfg.remove.refine.rounds, cfg.remove.views.turns = 30, 1, 1
+    cfg.language.steps = 30
+    cfg.distill.field_steps, cfg.distill.render_steps = 10, 10
+    return cfg
+
+
+@pytest.mark.parametrize("reuse", [False, True])
+def test_move_distils_both_regions_or_reuses_the_removal_patch(
+    move_scene: Path, sim_root: Path, monkeypatch: pytest.MonkeyPatch, reuse: bool
+):
+    """By default the distillation trains two patches, the source region's and the target
+    box's; ``reuse_removal_patch`` keeps the removal's own patch (the teacher there) as the
+    source part and trains only the target's. Either way the version is the parent plus two
+    patches, rays cross both regions, the source is emptied and the target filled."""
+    import neoedit.edit.relocate as relocate
+
+    calls: list[tuple[int, list[OrientedBox]]] = []
+    real = relocate.distill
+
+    def recording(students, *args, **kwargs):  # type: ignore[no-untyped-def]
+        calls.append((len(students), list(args[4])))
+        return real(students, *args, **kwargs)
+
+    monkeypatch.setattr(relocate, "distill", recording)
+    built = []  # the teacher, the parent's field with the removal's patch, timings
+    real_teacher = relocate._teacher
+    monkeypatch.setattr(
+        relocate, "_teacher", lambda *a, **k: built.append(real_teacher(*a, **k)) or built[-1]
+    )
+    parent = load_scene(move_scene)
+    action = _action(sim_root)
+    text = load_text_encoder(parent.meta.language.text)
+    found = query_scene(parent, action["object"], text, SPARSE)
+    motion = Motion(found.box, np.asarray(action["transform_world"]))
+    child = move(parent, [motion], _fast_move_config(reuse_removal_patch=reuse))
+    record = child.meta.edits[-1]
+    source = OrientedBox.from_dict(record["source_boxes"][0])
+    target = OrientedBox.from_dict(record["target_boxes"][0])
+    assert isinstance(child.field, PatchedField) and len(child.field.parts) == 2
+    (source_region,), (target_region,) = child.field.regions
+    assert source_region.center_m[:2] == pytest.approx(source.center_m[:2], abs=1e-6)
+    assert target_region.to_dict() == target.to_dict()
+    ((n_students, boxes),) = calls
+    assert n_students == (1 if reuse else 2)
+    assert [b.to_dict() for b in boxes] == [source_region.to_dict(), target.to_dict()]
+    removal = built[0][1].parts[-1].state_dict()
+    kept = child.field.parts[0].state_dict()
+    assert all(torch.equal(v, removal[k]) for k, v in kept.items()) == reuse
+    assert _mean_density(parent, source) > 20 * _mean_density(child, source)
+    assert _mean_density(child, target) > 20 * _mean_density(parent, target)

@@ -34,7 +34,7 @@ from neoedit.fields.radiance import Field, RadianceField
 from neoedit.geometry import OrientedBox, points_in_boxes
 from neoedit.geometry.masks import box_pixels
 from neoedit.rendering.occupancy import OccupancyGrid
-from neoedit.rendering.renderer import RenderConfig, render_chunked, render_rays, sample_rays
+from neoedit.rendering.renderer import RenderConfig, render_rays, sample_rays
 from neoedit.training.loop import fit
 from neoedit.utils.optim import field_param_groups, make_adam
 from neoedit.utils.progress import make_progress
@@ -147,33 +147,6 @@ def render_loss(
     return loss
 
 
-def teacher_targets(
-    teacher: Field,
-    grid: OccupancyGrid,
-    pool: RayPool,
-    batches: tuple[int, float, int],
-    render_cfg: RenderConfig,
-    background: Background,
-) -> list[tuple[RayBundle, dict[str, torch.Tensor]]]:
-    """Stage 2's (rays, teacher render) for each step; ``batches`` = (rays per step, share
-    through a box, steps). The teacher is fixed, so every step's rays are drawn up front (the
-    pool's draws, in order) and rendered in one no-gradient pass by the fast march, the way
-    every image of a version is rendered, instead of a training-sampler render per step
-    (measured on NEO-Sim pick_place_2: the distillation 13.2 s -> 10.6 s)."""
-    n_rays, focus, steps = batches
-    drawn = [pool.sample(n_rays, focus) for _ in range(steps)]
-    rays = RayBundle(
-        torch.cat([b.origins for b in drawn]),
-        torch.cat([b.directions for b in drawn]),
-        torch.cat([b.z_scale for b in drawn]),
-    )
-    out = render_chunked(teacher, grid, rays, render_cfg, background)
-    return [
-        (b, {k: v[i * n_rays : (i + 1) * n_rays] for k, v in out.items()})
-        for i, b in enumerate(drawn)
-    ]
-
-
 def _decay(steps: int, step: int) -> float:
     """10x exponential decay over ``steps``."""
     return 0.1 ** (step / max(steps, 1))
@@ -271,15 +244,10 @@ def distill(
         allow(pts)
         return field_loss(seen, teacher, pts, dirs, cfg.opacity_step_m)
 
-    targets: list[tuple[RayBundle, dict[str, torch.Tensor]]] = []
-
-    def stage2(step: int) -> torch.Tensor:
-        if not targets:  # the first step renders the teacher on every step's rays at once
-            targets[:] = teacher_targets(
-                teacher, teacher_grid, pool, (n_rays, focus, cfg.render_steps), render_cfg,
-                background,
-            )  # fmt: skip
-        rays, target = targets[step]
+    def stage2(_: int) -> torch.Tensor:
+        rays = pool.sample(n_rays, focus)
+        with torch.no_grad():
+            target = render_rays(teacher, teacher_grid, rays, render_cfg, background)
         out = render_rays(
             seen, student_grid, rays, render_cfg, background, jitter=True, generator=ray_gen
         )

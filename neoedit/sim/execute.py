@@ -119,6 +119,22 @@ class PandaArm:
         )  # fmt: skip
         return np.clip(np.asarray(q[: len(self.arm)]), self.limits[:, 0], self.limits[:, 1])
 
+    def solve(self, pos: np.ndarray, rot: np.ndarray, passes: int = 3) -> np.ndarray:
+        """Joint angles for a hand pose: inverse kinematics from the current joints, refined
+        ``passes - 1`` times from its own (limit-clipped) solution, as :func:`reach_error`
+        checks it. The arm is put back where it was, velocities included, so a motion can
+        solve its next waypoint without losing its state."""
+        states = pb.getJointStates(self.robot, self.arm, physicsClientId=self.c)
+        q = self.ik(pos, rot)
+        try:
+            for _ in range(passes - 1):
+                self.set_joints(q)
+                q = self.ik(pos, rot)
+        finally:
+            for j, st in zip(self.arm, states, strict=True):
+                pb.resetJointState(self.robot, j, st[0], st[1], physicsClientId=self.c)
+        return q
+
     def set_joints(self, q: np.ndarray) -> None:
         """Put the arm at ``q`` at once (no motion, no physics step)."""
         for j, qj in zip(self.arm, q, strict=True):
@@ -154,7 +170,7 @@ class PandaArm:
         return float(np.linalg.norm(self.ee_pose()[0] - pos)), sorted(touched)
 
     def _drive(self, pos: np.ndarray, rot: np.ndarray, seconds: float) -> set[int]:
-        start, goal = self.joints(), self.ik(pos, rot)
+        start, goal = self.joints(), self.solve(pos, rot)
         steps = max(1, int(seconds * PHYSICS_HZ))
         touched: set[int] = set()
         for k in range(1, steps + 1):
@@ -253,8 +269,7 @@ def reach_error(
     worst, where = 0.0, ""
     try:
         for stage, p, r in _waypoints(pos, rot, transform, cfg):
-            for _ in range(3):  # refine from the last solution, as the waypoints do
-                arm.set_joints(arm.ik(p, r))
+            arm.set_joints(arm.solve(p, r))  # refined as the motion's waypoints are
             err = float(np.linalg.norm(arm.ee_pose()[0] - p))
             if not err <= worst:  # a NaN counts as the worst
                 worst, where = err, stage
