@@ -97,10 +97,10 @@ class MoveConfig:
     reuse_removal_patch: bool = False
     """Patch student: keep the removal's own patch (the teacher there) as the source region's
     part instead of distilling the source into a fresh patch; only the target patch learns.
-    Faster (NEO-Sim pick-and-place: 16-24 % less edit time) at the same In-PSNR and query
-    boxes, but distillation's scan-view rays also make the inpainted hole more consistent
-    than the removal's virtual views alone, so Out-PSNR is lower on the wooden-table scenes
-    (-1.2 to -1.6 dB; see benchmarks/RESULTS.md)."""
+    Measured on NEO-Sim pick_place_2-6: 7-18 % less edit time (mean 12 %) at the same
+    In-PSNR and query boxes; Out-PSNR -0.44 dB on average (-1.2 / -1.6 dB on pick_place_2
+    / 3: distilling the hole from the scan's views too makes it more consistent than the
+    removal's virtual views alone); see benchmarks/RESULTS.md."""
     student: str = "patch"
     """'patch': the student is two new patches of the field, initialised from the current
     weights: one owns the source boxes with the support under them (its MLPs learn at
