@@ -113,14 +113,18 @@ def test_solving_a_waypoint_refines_the_inverse_kinematics_and_keeps_the_arm_mov
             return float(np.linalg.norm(arm.ee_pose()[0] - pos))
 
         rot = np.diag([1.0, -1.0, -1.0])  # pointing down
-        for pos in (np.array([-0.1, 0.1, 0.1]), np.array([0.2, -0.15, 0.05])):
+        # near the base and low, one clipped solution from home misses by centimetres
+        hard = np.array([-0.4, 0.3, 0.02])
+        for pos in (np.array([-0.1, 0.1, 0.1]), np.array([0.2, -0.15, 0.05]), hard):
             single, solved = arm.ik(pos, rot), arm.solve(pos, rot)
             assert moving() == before
             assert np.all(solved >= arm.limits[:, 0]) and np.all(solved <= arm.limits[:, 1])
-            assert error(solved, pos) <= error(single, pos) + 1e-4
+            e_single, e_solved = error(single, pos), error(solved, pos)
+            assert e_solved <= e_single + 1e-4
+            if pos is hard:
+                assert e_single > 0.01 and e_solved < 0.002, (e_single, e_solved)
             for j, st in zip(arm.arm, states, strict=True):
                 pb.resetJointState(arm.robot, j, st[0], st[1], physicsClientId=arm.c)
-        assert error(arm.solve(np.array([-0.1, 0.1, 0.1]), rot), np.array([-0.1, 0.1, 0.1])) < 0.005
 
 
 def test_sim_execute_runs_the_first_grasp_the_arm_reaches(tmp_path, capsys):

@@ -20,6 +20,7 @@ from neoedit.cli import main
 from neoedit.data import load_scene_data
 from neoedit.edit.language_update import pushed_out_of_footprint
 from neoedit.edit.relocate import Motion, MoveConfig, move
+from neoedit.errors import NeoError
 from neoedit.fields.composed import ComposedField, TransformedField, moved_field
 from neoedit.fields.patched import PatchedField
 from neoedit.fields.radiance import RadianceField
@@ -419,5 +420,12 @@ def test_move_distils_both_regions_or_reuses_the_removal_patch(
     removal = built[0][1].parts[-1].state_dict()
     kept = child.field.parts[0].state_dict()
     assert all(torch.equal(v, removal[k]) for k, v in kept.items()) == reuse
+    assert len(built[0][1].parts) == 1  # the teacher's field did not get the student's patch
+    for k, v in load_scene(move_scene).field.state_dict().items():
+        assert torch.equal(parent.field.state_dict()[k], v), k  # nor did the parent change
+    if reuse:  # NEO's patch student only: refused up front elsewhere
+        for other in ({"preview": True}, {"method": "seal3d"}, {"student": "field"}):
+            with pytest.raises(NeoError, match="applies to NEO's patch student only"):
+                move(parent, [motion], _fast_move_config(reuse_removal_patch=True, **other))
     assert _mean_density(parent, source) > 20 * _mean_density(child, source)
     assert _mean_density(child, target) > 20 * _mean_density(parent, target)

@@ -95,8 +95,9 @@ class MoveConfig:
     """Distil with stage 1 only, for the whole budget (the ablation 'field distillation
     only')."""
     reuse_removal_patch: bool = False
-    """Patch student: keep the removal's own patch (the teacher there) as the source region's
-    part instead of distilling the source into a fresh patch; only the target patch learns.
+    """Patch student: keep the removal's own patch (the teacher there: the same weights) as
+    the source region's part instead of distilling the source into a fresh patch; only the
+    target patch learns (NEO's patch student only).
     Measured on NEO-Sim pick_place_2-6: 7-18 % less edit time (mean 12 %) at the same
     In-PSNR and query boxes; Out-PSNR -0.44 dB on average (-1.2 / -1.6 dB on pick_place_2
     / 3: distilling the hole from the scan's views too makes it more consistent than the
@@ -164,6 +165,11 @@ def move(
         raise NeoError(f"unknown method {cfg.method!r} (choose from {', '.join(METHODS)})")
     if cfg.student not in STUDENTS:
         raise NeoError(f"unknown student {cfg.student!r} (choose from {', '.join(STUDENTS)})")
+    if cfg.reuse_removal_patch and (cfg.preview or cfg.method != "neo" or cfg.student != "patch"):
+        raise NeoError(
+            "--edit.reuse-removal-patch applies to NEO's patch student only (not with "
+            "--preview, --method seal3d or --edit.student field)"
+        )
     check_motions(parent, motions)
     t0 = time.perf_counter()
     sources = working_boxes(parent, [m.box for m in motions], cfg.remove)
@@ -350,6 +356,39 @@ def _seal3d_distil(
     return losses
 
 
+def _students(
+    parent: Scene,
+    child: Scene,
+    source_regions: list[OrientedBox],
+    targets: list[OrientedBox],
+    dcfg: DistillConfig,
+    patch_mode: bool,
+    removed: PatchedField | None,
+) -> RadianceField | list[tuple[RadianceField, float]]:
+    """What the distillation trains, with each part's MLP rate factor; sets ``child.field``
+    for a patch student. ``removed`` (the parent's field with the removal's patch): keep
+    that patch as the source part and train only the target's."""
+    if removed is not None:
+        # the removal's patch is the teacher in the source region: keep its weights, and train
+        # only the target boxes' patch, initialised from what renders them in the parent (rays
+        # still cross both regions: measured on pick_place_3, drawing them all through the
+        # target left a haze above the moved brick and its query box 0.72 -> 0.46 IoU)
+        pf = parent.field
+        init = pf.renderer_of(targets) if isinstance(pf, PatchedField) else _base(pf)
+        child.field = copy.deepcopy(removed)
+        return [(child.patched().add_patch(list(targets), init), dcfg.patch_mlp_lr_factor)]
+    if patch_mode:
+        # two patches: the source regions (MLPs frozen, as the inpainted hole needs only the
+        # table's rows) and the target boxes (MLPs learning: a new object stands there)
+        child.field = copy.deepcopy(parent.field)
+        patched = child.patched()
+        return [
+            (patched.add_patch(source_regions), dcfg.mlp_lr_factor),
+            (patched.add_patch(list(targets)), dcfg.patch_mlp_lr_factor),
+        ]
+    return copy.deepcopy(_base(parent.field))
+
+
 def _distil_move(
     parent: Scene,
     child: Scene,
@@ -370,10 +409,8 @@ def _distil_move(
     below = cfg.remove.refine.below_m
     regions = [*(edit_region(s, below) for s in sources), *targets]
     patch_mode = cfg.student == "patch" and cfg.method == "neo"
-    keep_removal = patch_mode and removed is not None and cfg.reuse_removal_patch
-    if isinstance(parent.field, PatchedField) and not (
-        cfg.student == "patch" and cfg.method == "neo"
-    ):  # a whole-field student bakes the earlier patches in
+    if isinstance(parent.field, PatchedField) and not patch_mode:
+        # a whole-field student bakes the earlier patches in
         regions += [b for region in parent.field.regions for b in region]
     teacher_grid = copy.deepcopy(parent.grid)
     refresh_grid(teacher_grid, teacher.density, cells_in_boxes(teacher_grid, regions))
@@ -389,28 +426,8 @@ def _distil_move(
         virtual = concat_cameras([virtual_cameras(b, scan, views) for b in [*sources, *targets]])
     pool = RayPool(scan, virtual, regions, parent.field.aabb.device, cfg.distill.seed)
     dcfg = _distil_config(cfg, patch_mode)
-    students: RadianceField | list[tuple[RadianceField, float]]
-    if keep_removal and removed is not None:
-        # the removal's patch is the teacher in the source region: keep it, and train only
-        # the target boxes' patch, initialised from what renders them in the parent (rays
-        # still cross both regions: measured on pick_place_3, drawing them all through the
-        # target left a haze above the moved brick and its query box 0.72 -> 0.46 IoU)
-        pf = parent.field
-        init = pf.renderer_of(targets) if isinstance(pf, PatchedField) else _base(pf)
-        child.field = copy.deepcopy(removed)
-        patched = child.patched()
-        students = [(patched.add_patch(list(targets), init), dcfg.patch_mlp_lr_factor)]
-    elif patch_mode:
-        # two patches: the source regions (MLPs frozen, as the inpainted hole needs only the
-        # table's rows) and the target boxes (MLPs learning: a new object stands there)
-        child.field = copy.deepcopy(parent.field)
-        patched = child.patched()
-        students = [
-            (patched.add_patch(regions[: len(sources)]), dcfg.mlp_lr_factor),
-            (patched.add_patch(list(targets)), dcfg.patch_mlp_lr_factor),
-        ]
-    else:
-        students = copy.deepcopy(_base(parent.field))
+    keep = removed if patch_mode and cfg.reuse_removal_patch else None
+    students = _students(parent, child, regions[: len(sources)], targets, dcfg, patch_mode, keep)
     timings["setup_s"] = round(time.perf_counter() - t, 2)
     t = time.perf_counter()
     args = (student_grid, teacher, teacher_grid, pool)

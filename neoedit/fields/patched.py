@@ -43,6 +43,8 @@ class PatchedField(ComposedField):
     def renderer_of(self, region: list[OrientedBox]) -> RadianceField:
         """The part that renders the boxes ``region`` now: the newest patch owning a corner or
         the centre of one of them, else the base."""
+        if not region:
+            raise ValueError("a region needs at least one box")
         probe = torch.cat(
             [
                 torch.as_tensor(np.vstack([b.corners(), b.center_m]), dtype=torch.float32)

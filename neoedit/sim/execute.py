@@ -121,9 +121,12 @@ class PandaArm:
 
     def solve(self, pos: np.ndarray, rot: np.ndarray, passes: int = 3) -> np.ndarray:
         """Joint angles for a hand pose: inverse kinematics from the current joints, refined
-        ``passes - 1`` times from its own (limit-clipped) solution, as :func:`reach_error`
-        checks it. The arm is put back where it was, velocities included, so a motion can
-        solve its next waypoint without losing its state."""
+        ``passes - 1`` times from its own (limit-clipped) solution, the refinement
+        :func:`reach_error` uses too. The arm is put back where it was, velocities included,
+        so a motion can solve its next waypoint without losing its state. (The check still
+        starts each stage from the last exact solution, a motion from the arm's real joints,
+        which lag under load, and through extra points every 4 cm: it stays a little
+        optimistic.)"""
         states = pb.getJointStates(self.robot, self.arm, physicsClientId=self.c)
         q = self.ik(pos, rot)
         try:
