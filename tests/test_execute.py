@@ -61,6 +61,18 @@ def test_an_unreachable_grasp_is_reported_with_its_cause():
         assert not ex.success and ex.stage == "reach" and "cannot reach" in ex.cause
 
 
+def test_an_approach_stopped_by_the_object_says_so():
+    """Fingers opened narrower than the cube land on its top: the motion stops short, and
+    the cause names what stopped it rather than the arm's reach."""
+    with _world() as world:
+        centre = np.asarray(world.object_box("cube").center_m)
+        transform = motion_about(centre, np.array([0.05, 0.1, 0.0]), 30.0)
+        grasp = {**_top_down(world), "opening_m": 0.01, "width_m": 0.005}
+        ex = execute_move(world, "cube", grasp, transform, ExecuteConfig())
+        assert not ex.success and ex.stage == "approach", ex.cause
+        assert "stopped" in ex.cause and "against cube" in ex.cause, ex.cause
+
+
 def test_a_robot_without_a_gripper_is_refused():
     from neoedit.sim.catalog import SETUPS
 

@@ -314,7 +314,15 @@ def _pick_and_place(
         ex.stage = stage
         err, touched = arm.move_to(*way[stage], cfg.segment_s)
         if err > cfg.reach_tolerance_m:
-            ex.cause = f"{stage}: the arm cannot reach the pose ({err * 100:.1f} cm off)"
+            # stopped short against something (the object held is touched on purpose), or
+            # out of the arm's reach
+            against = set(touched) - ({body} if stage in ("lift", "carry", "place") else set())
+            ex.cause = (
+                f"{stage}: the hand stopped {err * 100:.1f} cm short of the pose, against "
+                f"{_names(world, against)}"
+                if against
+                else f"{stage}: the arm cannot reach the pose ({err * 100:.1f} cm off)"
+            )
             return False
         hit = avoid.intersection(touched)
         if hit:
