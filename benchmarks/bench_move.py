@@ -114,7 +114,10 @@ def run_scene(name: str, args: argparse.Namespace, methods: list[str]) -> tuple[
         else:
             t0 = time.perf_counter()
             cfg = config_for(method)
-            cfg.reuse_removal_patch = args.reuse_removal_patch
+            # NEO's patch student only (the preview and the baseline refuse the option)
+            cfg.reuse_removal_patch = (
+                args.reuse_removal_patch and cfg.method == "neo" and not cfg.preview
+            )
             scene = move(pre, [Motion(found, transform)], cfg, action["object"])
             seconds = time.perf_counter() - t0
             save_scene(out, scene)

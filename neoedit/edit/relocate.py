@@ -110,8 +110,8 @@ class MoveConfig:
     (its MLPs learn at ``distill.patch_mlp_lr_factor``: a new object stands there); the rest
     of the scene stays bit-identical, so a chain of edits cannot wash it out. 'field': the
     whole field is the student (updates limited to the table rows that samples in the boxes
-    read; earlier patches are baked in). The Seal-3D-style baseline
-    always distils the whole field, as Seal-3D does."""
+    read; earlier patches are baked in). The Seal-3D-style baseline always distils the whole
+    field, as Seal-3D does."""
 
 
 @dataclass
