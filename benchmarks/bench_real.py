@@ -10,11 +10,20 @@ Sections (run alone, on an otherwise idle machine; they build on each other):
   largest consistent piece; wall time.
 - poses: both datasets' cameras on the photos they share, after a similarity alignment
   (Umeyama on the camera centres): largest centre distance and rotation difference.
-- train: ``neo train --max-minutes 5`` on the processed dataset (radiance field, then the
-  label-free geometric language field); held-out PSNR, the language vocabulary, and a strip
-  of held-out renders over the photos (OUT/heldout_strip.png).
-- edit: ``neo query SCENE "can"`` (box picture) and ``neo remove SCENE "can"`` (before/after
-  renders); wall times.
+- train: ``neo train --max-minutes 5`` on the processed dataset (radiance field with the
+  sparse structure-from-motion depth the import wrote, then the label-free geometric
+  language field); held-out PSNR, the language vocabulary, the geometry probe below, and a
+  strip of held-out renders over the photos (OUT/heldout_strip.png).
+- train-colour: the same training with ``--depth-loss-weight 0`` (colour only, as before the
+  sparse depth existed), into OUT/scene_colour.
+- edit: ``neo query SCENE "can"`` (box picture), ``neo remove SCENE "can"`` and
+  ``neo move SCENE "can" --translate 0.15 0 0``; wall times, and a strip of held-out views
+  before / after the removal / after the move (OUT/edit_strip.png).
+
+Geometry probe (what the label-free teacher sees): surface points of random training pixels
+(the teacher's own sampling), the robust spread of the floor's height 10-20 cm from the
+look centre, how many points lie within 3.5 cm of the vertical through it (the can) and
+how high they reach, and the instances the geometric teacher discovers.
 Writes ``OUT/<section>.json``.
 """
 
@@ -34,7 +43,7 @@ import numpy as np
 from neoedit.data import load_scene_data
 from neoedit.data.markers import umeyama
 
-SECTIONS = ("import", "process", "poses", "train", "edit")
+SECTIONS = ("import", "process", "poses", "train", "train-colour", "edit")
 
 
 def run(cmd: list[str]) -> tuple[int, float, str]:
@@ -126,8 +135,8 @@ def section_poses(out: Path) -> dict:
     return result
 
 
-def section_train(out: Path, minutes: float) -> dict:
-    scene = out / "scene"
+def section_train(out: Path, minutes: float, colour_only: bool = False) -> dict:
+    scene = out / ("scene_colour" if colour_only else "scene")
     cmd = neo(
         "train",
         str(out / "processed"),
@@ -139,13 +148,17 @@ def section_train(out: Path, minutes: float) -> dict:
         "100000",
         "--eval-every",
         "0",
+        *(["--depth-loss-weight", "0"] if colour_only else []),
     )
     if scene.exists():
         subprocess.run(["rm", "-rf", str(scene)], check=True)
     rc, seconds, text = run(cmd)
+    if rc != 0:
+        return {"exit": rc, "output": " ".join(text.split())[-600:], "command": shlex.join(cmd[2:])}
     meta = json.loads((scene / "scene.json").read_text())
     last = meta["history"][-1]
-    strip = _strip(scene, out / "processed", out / "heldout_strip.png")
+    name = "heldout_strip_colour.png" if colour_only else "heldout_strip.png"
+    strip = _strip(scene, out / "processed", out / name)
     lang = meta.get("language") or {}
     result = {
         "exit": rc,
@@ -159,9 +172,63 @@ def section_train(out: Path, minutes: float) -> dict:
         "train_psnr": last.get("train_psnr"),
         "rays_per_s": last.get("rays_per_s"),
         "strip": str(strip),
+        "geometry": geometry_probe(scene, out / "processed"),
+        "language_output": " ".join(
+            line for line in text.splitlines() if "language" in line or "teacher" in line
+        )[-400:],
         "command": shlex.join(cmd[2:]),
     }
     print(result)
+    return result
+
+
+def geometry_probe(scene_dir: Path, data_dir: Path) -> dict:
+    """What the geometric teacher sees of the field (see the module docstring)."""
+    import torch
+
+    from neoedit.cameras.rays import CameraTensors
+    from neoedit.errors import NeoError
+    from neoedit.language.geometric import GeometricConfig, discover
+    from neoedit.language.training import LanguageTrainConfig, sample_surface
+    from neoedit.scene import load_scene
+
+    scene, data = load_scene(scene_dir), load_scene_data(data_dir)
+    frames = data.split["train"]
+    cams = CameraTensors(data.cameras)
+    cfg = LanguageTrainConfig()  # the teacher's own sampling: as many rays, same seed
+    g = torch.Generator().manual_seed(cfg.seed)
+    with torch.no_grad():
+        pos, v, u, pts, acc = sample_surface(
+            scene, cams, frames, data.height, data.width, cfg.rays, g
+        )
+    hit = (acc >= cfg.min_accumulation).numpy()
+    pts = pts.numpy()[hit].astype(np.float64)
+    rgb = data.images[frames[pos.numpy()[hit]], v.numpy()[hit], u.numpy()[hit]]
+    r = np.linalg.norm(pts[:, :2], axis=1)
+    ring = pts[(r > 0.1) & (r < 0.2), 2]
+    axis = pts[r < 0.035, 2]
+    result = {
+        "surface_points": int(len(pts)),
+        "floor_10_20cm_median_z_cm": round(float(np.median(ring)) * 100, 2),
+        "floor_10_20cm_robust_sigma_mm": round(
+            float(1.4826 * np.median(np.abs(ring - np.median(ring)))) * 1000, 1
+        ),
+        "points_within_3.5cm_of_axis": int(len(axis)),
+        "axis_height_p50_p95_cm": np.round(np.percentile(axis, [50, 95]) * 100, 1).tolist()
+        if len(axis)
+        else None,
+    }
+    try:
+        found = discover(pts, rgb, data.cameras.camera_to_world[frames], GeometricConfig())
+    except NeoError as e:
+        result["teacher"] = " ".join(str(e).split())
+        return result
+    result["teacher_up"] = np.round(found.plane.normal, 3).tolist()
+    result["instances"] = [
+        f"{inst.description}: {inst.shape.kind}, {inst.shape.length_m * 100:.1f} x "
+        f"{inst.shape.width_m * 100:.1f} x {inst.shape.height_m * 100:.1f} cm, {inst.points} points"
+        for inst in found.instances
+    ]
     return result
 
 
@@ -174,7 +241,13 @@ def section_edit(out: Path, prompt: str) -> dict:
     remove = neo("remove", str(scene), prompt, "--out", str(out / "removed"), "--overwrite")
     rc_r, t_r, text_r = run(remove)
     print(text_r)
+    move = neo("move", str(scene), prompt, "--translate", "0.15", "0", "0")
+    move += ["--out", str(out / "moved"), "--overwrite"]
+    rc_m, t_m, text_m = run(move)
+    print(text_m)
     box = json.loads((out / "query_box.json").read_text()) if rc_q == 0 else None
+    scenes = [scene] + [out / d for d, rc in (("removed", rc_r), ("moved", rc_m)) if rc == 0]
+    strip = _edit_strip(scenes, out / "processed", out / "edit_strip.png")
     return {
         "prompt": prompt,
         "query_exit": rc_q,
@@ -183,8 +256,36 @@ def section_edit(out: Path, prompt: str) -> dict:
         "remove_exit": rc_r,
         "remove_s": round(t_r, 1),
         "remove_output": " ".join(text_r.split())[-600:],
-        "commands": [shlex.join(query[2:]), shlex.join(remove[2:])],
+        "move_exit": rc_m,
+        "move_s": round(t_m, 1),
+        "move_output": " ".join(text_m.split())[-600:],
+        "strip": str(strip),
+        "commands": [shlex.join(c[2:]) for c in (query, remove, move)],
     }
+
+
+def _edit_strip(scenes: list[Path], data_dir: Path, path: Path, views: int = 3) -> Path:
+    """Held-out views (columns) of each scene (rows: before, removed, moved)."""
+    import imageio.v3 as iio
+    import torch
+
+    from neoedit.cameras.rays import CameraTensors
+    from neoedit.scene import load_scene
+
+    data = load_scene_data(data_dir)
+    cams = CameraTensors(data.cameras)
+    test = data.split["test"][:views]
+    rows = []
+    for scene_dir in scenes:
+        scene = load_scene(scene_dir)
+        with torch.no_grad():
+            renders = [
+                scene.render_image(cams, int(i), data.height, data.width)["rgb"].numpy()
+                for i in test
+            ]
+        rows.append(np.concatenate([(np.clip(r, 0, 1) * 255).astype(np.uint8) for r in renders], 1))
+    iio.imwrite(path, np.concatenate(rows, 0)[::2, ::2])
+    return path
 
 
 def _strip(scene_dir: Path, data_dir: Path, path: Path) -> Path:
@@ -232,7 +333,7 @@ def main() -> None:
         elif name == "edit":
             result = section_edit(args.out, args.prompt)
         else:
-            result = section_train(args.out, args.minutes)
+            result = section_train(args.out, args.minutes, colour_only=name == "train-colour")
         result["date"] = time.strftime("%Y-%m-%d %H:%M")
         (args.out / f"{name}.json").write_text(json.dumps(result, indent=2))
 

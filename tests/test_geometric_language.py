@@ -17,7 +17,7 @@ from neoedit.data import load_scene_data
 from neoedit.errors import NeoError
 from neoedit.geometry import OrientedBox
 from neoedit.geometry.box import box_iou_3d
-from neoedit.language.describe import colour_name, colour_words
+from neoedit.language.describe import colour_name, colour_words, measure_shape
 from neoedit.language.geometric import (
     BACKGROUND,
     IGNORED,
@@ -265,3 +265,15 @@ def test_auto_without_a_support_plane_skips_language(trained: Path, sim_root: Pa
     cfg.teacher = "geometric"
     with pytest.raises(NeoError, match="no support plane"):
         train_language(load_scene(trained), data, cfg)
+
+
+def test_a_tall_round_object_with_a_neck_is_a_cylinder():
+    """A bottle (a 7 cm body 14 cm tall, then a 3 cm neck up to 20 cm) narrows at the top,
+    so its top is not flat, but it is far taller than a ball: it is named as a cylinder."""
+    rng = np.random.default_rng(1)
+    body = _cylinder(rng, 3000, (0.0, 0.0), 0.035, 0.14)
+    body = body[body[:, 2] < 0.1399]  # the shoulder is open: the neck rises from it
+    neck = _cylinder(rng, 600, (0.0, 0.0), 0.015, 0.06) + [0.0, 0.0, 0.14]
+    shape = measure_shape(np.concatenate([body, neck]))
+    assert shape.height_m == pytest.approx(0.2, abs=0.01)
+    assert shape.kind == "cylinder"

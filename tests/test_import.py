@@ -394,7 +394,13 @@ def test_register_moves_a_later_scan_into_the_earlier_frame(tmp_path, capsys):
 
 
 @pytest.mark.parametrize(
-    "option", [["--piece", "banana"], ["--holdout-every", "1"], ["--orient.scale", "-2"]]
+    "option",
+    [
+        ["--piece", "banana"],
+        ["--holdout-every", "1"],
+        ["--orient.scale", "-2"],
+        ["--sparse-depth-min-track", "1"],
+    ],
 )
 def test_bad_options_are_refused_before_structure_from_motion(tmp_path, capsys, option):
     """``neo process`` checks its options before the photos are even read."""
@@ -404,3 +410,60 @@ def test_bad_options_are_refused_before_structure_from_motion(tmp_path, capsys, 
     err = " ".join(capsys.readouterr().err.split())
     assert option[0] in err and "photos" not in err
     assert not (tmp_path / "ds").exists()
+
+
+def test_sparse_depth_puts_the_sfm_points_on_the_training_rays(tmp_path, capsys):
+    """Each photo's depth image holds its observed sparse points: the ray the trainer casts
+    through such a pixel, at that z-depth, lands on a true scene point (within the pixel's
+    footprint); the rest of the image is 0 (no depth), and ``neo info`` calls it sparse."""
+    import torch
+
+    from neoedit.cameras.rays import CameraTensors
+
+    src = _capture(tmp_path / "cap")
+    orient = OrientConfig(camera_distance_m=cs.TRUE_DISTANCE)
+    report = import_capture(read_colmap(src), tmp_path / "ds", ImportConfig(orient=orient))
+    data = load_scene_data(tmp_path / "ds")
+    assert data.depth_m is not None and 0 < (data.depth_m > 0).mean() < 0.05
+    transform = np.asarray(report.orientation.transform)
+    truth = cs.to_model(cs.scene_points()) @ transform[:3, :3].T + transform[:3, 3]
+    cams = CameraTensors(data.cameras)
+    hits = 0
+    for i in range(len(data)):
+        v, u = np.nonzero(data.depth_m[i])
+        hits += len(v)
+        z = data.depth_m[i][v, u]
+        rays = cams.rays(torch.full((len(v),), i), torch.as_tensor(v), torch.as_tensor(u))
+        at = rays.origins + rays.directions * torch.as_tensor(z)[:, None] / rays.z_scale[:, None]
+        gap = np.linalg.norm(at.numpy()[:, None] - truth[None], axis=-1).min(1)
+        footprint = z / data.cameras.fx[i] + 1e-3  # a pixel's width at that depth + the PNG step
+        assert np.all(gap < footprint), (i, gap.max())
+    assert hits > 0.5 * len(truth)  # most points land in several photos
+    main(["info", str(tmp_path / "ds")])
+    assert "depth: sparse" in capsys.readouterr().out
+    import_capture(
+        read_colmap(src), tmp_path / "plain", ImportConfig(orient=orient, sparse_depth=False)
+    )
+    assert load_scene_data(tmp_path / "plain").depth_m is None
+
+
+def test_sparse_depth_image_keeps_the_nearest_point_and_round_trips_the_png(tmp_path):
+    from neoedit.cameras.cameras import look_at
+    from neoedit.data.images import read_depth_m
+    from neoedit.data.sparse_depth import depth_unit, sparse_depth_image, to_png
+
+    c2w = look_at(np.array([0.0, -1.0, 0.0]), np.zeros(3))  # looks along +y at the origin
+    k = np.array([[100.0, 0, 16.5], [0, 100.0, 12.5], [0, 0, 1]])  # pixel centres
+    # two points on the optical axis (the nearer wins), one off to the side, one behind
+    pts = np.array([[0, 0, 0.0], [0, -0.5, 0], [0.05, 0, 0], [0, -2.0, 0]])
+    depth = sparse_depth_image(pts, c2w, k, (32, 24))
+    assert depth[12, 16] == pytest.approx(0.5)
+    assert depth[12, 21] == pytest.approx(1.0) or depth[12, 11] == pytest.approx(1.0)
+    assert (depth > 0).sum() == 2  # the point behind the camera is left out
+    unit = depth_unit(6.0)
+    assert unit == pytest.approx(1e-3) and depth_unit(100.0) == pytest.approx(1e-2)
+    png = to_png(depth, unit)
+    assert png.dtype == np.uint16 and (png > 0).sum() == 2
+    path = tmp_path / "d.png"
+    cv2.imwrite(str(path), png)
+    np.testing.assert_allclose(read_depth_m(path, unit), depth, atol=unit / 2)

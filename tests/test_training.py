@@ -299,3 +299,54 @@ def test_loss_mask_excludes_pixels(sim_root: Path, tmp_path: Path):
     assert Trainer(data, Scene.create(meta), cfg, tmp_path, torch.device("cpu")).step(0) == 0.0
     data.loss_mask[:] = True
     assert Trainer(data, Scene.create(meta), cfg, tmp_path, torch.device("cpu")).step(0) > 0.0
+
+
+def _sparse_depth_trainer(sim_root: Path, tmp_path: Path, depth_rays: int, weight: float):
+    """A tiny trainer on removal_1's pre scan whose depth is kept on 1 % of the pixels (as
+    structure-from-motion points would give it); returns it and the scan's dense depth."""
+    from neoedit.scene import Scene, SceneMeta
+    from neoedit.training.trainer import Trainer, scene_box
+
+    data = load_scene_data(sim_root / "removal_1" / "pre")
+    dense = data.depth_m.copy()
+    keep = np.random.default_rng(0).random(dense.shape) < 0.01
+    data.depth_m = np.where(keep, dense, 0.0).astype(np.float32)
+    meta = SceneMeta(
+        data_path="x",
+        aabb_m=scene_box(data),
+        background_rgb=[1.0, 1.0, 1.0],
+        field=TINY_FIELD,
+        grid=TINY_GRID,
+        render=TINY_RENDER,
+    )
+    cfg = TrainConfig(
+        rays_per_batch=256, sparse_depth_rays=depth_rays, depth_loss_weight=weight, lr=2e-2
+    )
+    return Trainer(data, Scene.create(meta), cfg, tmp_path, torch.device("cpu")), data, dense
+
+
+def test_sparse_depth_is_sampled_and_shapes_the_geometry(sim_root: Path, tmp_path: Path):
+    """Sparse depth: every batch ends with pixels that have depth, and training on them
+    brings the held-out depth closer to the truth than colour alone (random background
+    off, so the colour alone leaves the geometry ambiguous where the box is white)."""
+    trainer, data, dense = _sparse_depth_trainer(sim_root, tmp_path, 128, 0.1)
+    img, v, u, _ = trainer.batch()
+    assert len(img) == 256 + 128
+    assert bool((trainer.depth[img[256:], v[256:], u[256:]] > 0).all())
+    errors = {}
+    for name, rays, weight in (("sparse", 128, 0.1), ("colour", 0, 0.0)):
+        trainer, data, dense = _sparse_depth_trainer(sim_root, tmp_path, rays, weight)
+        trainer.alpha = None
+        for step in range(150):
+            trainer.step(step)
+        cams = CameraTensors(data.cameras)
+        err = []
+        for i in data.split["test"]:
+            with torch.no_grad():
+                out = trainer.scene.render_image(cams, int(i), data.height, data.width)
+            gt = dense[i]
+            mask = gt > 0
+            err.append(np.abs(out["depth_z"].numpy()[mask] - gt[mask]))
+        errors[name] = float(np.median(np.concatenate(err)))
+    # measured: 4.5 mm with the sparse depth, 8.5 cm from colour alone
+    assert errors["sparse"] < 0.3 * errors["colour"], errors

@@ -10,6 +10,7 @@ import tyro
 from rich.console import Console
 
 from neoedit.data import load_scene_data
+from neoedit.data.sparse_depth import SPARSE_DEPTH_FRACTION
 
 
 @dataclass
@@ -28,8 +29,14 @@ class InfoCommand:
             f"focal (px): {np.median(d.cameras.fx):.1f}; camera centres within "
             f"{np.round(d.camera_aabb_m(), 3).tolist()} m"
         )
+        depth = "no"
+        if d.depth_m is not None:
+            share = float((d.depth_m > 0).mean())
+            depth = (
+                f"sparse ({share:.2%} of the pixels)" if share < SPARSE_DEPTH_FRACTION else "yes"
+            )
         c.print(
-            f"depth: {'yes' if d.depth_m is not None else 'no'}; instance labels: "
+            f"depth: {depth}; instance labels: "
             f"{'yes' if d.instance_ids is not None else 'no'}; loss masks: {'yes' if d.loss_mask is not None else 'no'}"
         )
         if d.instance_names:

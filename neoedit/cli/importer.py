@@ -37,6 +37,11 @@ class _ImportBase:
     number (1 = the first in name order)."""
     holdout_every: int = 8
     """Every n-th photo (in name order) is held out for evaluation."""
+    sparse_depth: bool = True
+    """Write each photo's sparse depth from the model's 3D points (depth/*.png), a depth prior
+    for neo train (on beer_can it gives the floor and the can their surfaces)."""
+    sparse_depth_min_track: int = 3
+    """Only points seen by at least this many imported photos go into the depth images."""
     orient: OrientConfig = field(default_factory=OrientConfig)
     check: PieceCheckConfig = field(default_factory=PieceCheckConfig)
     overwrite: bool = False
@@ -46,7 +51,15 @@ class _ImportBase:
         raise NotImplementedError
 
     def run(self) -> None:
-        cfg = ImportConfig(self.max_width, self.piece, self.holdout_every, self.orient, self.check)
+        cfg = ImportConfig(
+            max_width=self.max_width,
+            piece=self.piece,
+            holdout_every=self.holdout_every,
+            sparse_depth=self.sparse_depth,
+            sparse_depth_min_track=self.sparse_depth_min_track,
+            orient=self.orient,
+            pieces=self.check,
+        )
         cfg.check()
         check_writable_output(
             self.out, [self.src, self.images], kind="dataset", overwrite=self.overwrite
@@ -126,6 +139,11 @@ class ProcessCommand:
     piece: str = "check"
     """As for ``neo import``: what to do when the model is inconsistent."""
     holdout_every: int = 8
+    sparse_depth: bool = True
+    """Write each photo's sparse depth from the model's 3D points (depth/*.png), a depth prior
+    for neo train (on beer_can it gives the floor and the can their surfaces)."""
+    sparse_depth_min_track: int = 3
+    """Only points seen by at least this many imported photos go into the depth images."""
     orient: OrientConfig = field(default_factory=OrientConfig)
     overwrite: bool = False
 
@@ -143,7 +161,14 @@ class ProcessCommand:
         is_video = src.is_file() and src.suffix in VIDEO_SUFFIXES
         if src.is_file() and not is_video:
             raise NeoError(f"{src}: not a photo folder or a video ({', '.join(VIDEO_SUFFIXES)})")
-        cfg = ImportConfig(self.max_width, self.piece, self.holdout_every, self.orient)
+        cfg = ImportConfig(
+            max_width=self.max_width,
+            piece=self.piece,
+            holdout_every=self.holdout_every,
+            sparse_depth=self.sparse_depth,
+            sparse_depth_min_track=self.sparse_depth_min_track,
+            orient=self.orient,
+        )
         cfg.check()
         check_writable_output(self.out, [src], kind="dataset", overwrite=self.overwrite)
         Path(self.out).absolute().parent.mkdir(parents=True, exist_ok=True)

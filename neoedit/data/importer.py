@@ -14,6 +14,7 @@ import numpy as np
 from neoedit.data.capture import Capture, Lens, read_photo
 from neoedit.data.orient import Orientation, OrientConfig, orient
 from neoedit.data.pieces import PairCheck, PieceCheckConfig, find_pieces
+from neoedit.data.sparse_depth import depth_unit, observed_points, sparse_depth_image, to_png
 from neoedit.errors import DataError
 from neoedit.utils.io import atomic_directory, atomic_write_json
 from neoedit.utils.progress import track
@@ -31,6 +32,13 @@ class ImportConfig:
     number (1 = the first in name order)."""
     holdout_every: int = 8
     """Every n-th photo (in name order) is held out for evaluation."""
+    sparse_depth: bool = True
+    """Write a sparse depth image per photo (``depth/*.png``) from the model's 3D points, a
+    depth prior for ``neo train`` where the photos have no depth (COLMAP models only; LLFF
+    has no points)."""
+    sparse_depth_min_track: int = 3
+    """Only points observed by at least this many imported photos go into the depth images
+    (two-view points are the noisiest)."""
     orient: OrientConfig = field(default_factory=OrientConfig)
     pieces: PieceCheckConfig = field(default_factory=PieceCheckConfig)
 
@@ -38,6 +46,10 @@ class ImportConfig:
         """DataError naming the first option out of range (before any photo is read)."""
         if self.max_width is not None and self.max_width < 16:
             raise DataError(f"--max-width must be at least 16 px, got {self.max_width}")
+        if self.sparse_depth_min_track < 2:
+            raise DataError(
+                f"--sparse-depth-min-track must be >= 2, got {self.sparse_depth_min_track}"
+            )
         if self.holdout_every < 2:
             raise DataError(f"--holdout-every must be >= 2, got {self.holdout_every}")
         if self.piece not in PIECE_CHOICES and not (self.piece.isdigit() and int(self.piece) >= 1):
@@ -170,6 +182,7 @@ def import_capture(
     frames: list[dict] = []
     train: list[str] = []
     test: list[str] = []
+    depth = SparseDepth(part, frame, cfg) if cfg.sparse_depth and len(part.points) else None
     with atomic_directory(out, overwrite=overwrite, kind="dataset") as tmp:
         (tmp / "images").mkdir()
         for j in track(range(len(part)), "undistorting photos"):
@@ -181,6 +194,8 @@ def import_capture(
             c2w = frame.transform @ part.camera_to_world[j]
             c2w[:3, :3] /= frame.scale
             frames.append(_frame_entry(name, c2w, k, image.shape))
+            if depth is not None:
+                frames[-1]["depth_file_path"] = depth.write(tmp, name, j, c2w, k, image.shape)
             (test if j % cfg.holdout_every == 0 else train).append(name)
         meta = {
             "camera_model": "OPENCV",
@@ -196,12 +211,48 @@ def import_capture(
                 "orientation": frame.to_dict(),
             },
         }
+        if depth is not None:
+            meta["depth_unit_scale_factor"] = depth.unit
+            meta["neoedit_import"]["sparse_depth"] = depth.summary()
         atomic_write_json(tmp / "transforms.json", meta)
         if extras is not None:
             extras(tmp)
     spans = [(capture.names[p[0]], capture.names[p[-1]], len(p)) for p in pieces]
     h, w = frames[0]["h"], frames[0]["w"]
     return ImportReport(Path(out), len(frames), (w, h), spans, chosen, frame, checks)
+
+
+class SparseDepth:
+    """Writes each photo's sparse depth image (:mod:`neoedit.data.sparse_depth`) in the
+    oriented frame, and counts what it wrote."""
+
+    def __init__(self, part: Capture, frame: Orientation, cfg: ImportConfig):
+        rot, shift = frame.transform[:3, :3], frame.transform[:3, 3]
+        self.points = part.points @ rot.T + shift
+        self.seen = observed_points(
+            self.points, part.point_tracks, len(part), cfg.sparse_depth_min_track
+        )
+        everything = np.vstack([self.points, part.centres @ rot.T + shift])
+        self.unit = depth_unit(float(np.linalg.norm(np.ptp(everything, axis=0))))
+        self.pixels: list[int] = []
+
+    def write(self, folder: Path, name: str, j: int, c2w: np.ndarray, k: np.ndarray, shape) -> str:
+        """Write photo ``j``'s depth PNG beside its image; its path relative to ``folder``."""
+        import cv2
+
+        depth = sparse_depth_image(self.points[self.seen[j]], c2w, k, (shape[1], shape[0]))
+        self.pixels.append(int((depth > 0).sum()))
+        rel = "depth/" + name.removeprefix("images/")
+        (folder / rel).parent.mkdir(parents=True, exist_ok=True)
+        if not cv2.imwrite(str(folder / rel), to_png(depth, self.unit)):
+            raise DataError(f"cannot write {folder / rel}")
+        return rel
+
+    def summary(self) -> dict:
+        return {
+            "points": int(len(np.unique(np.concatenate(self.seen)))) if self.seen else 0,
+            "pixels_per_photo_median": int(np.median(self.pixels)) if self.pixels else 0,
+        }
 
 
 def part_span(capture: Capture, index: np.ndarray) -> str:

@@ -8,8 +8,9 @@ words from the instances' centres relative to one another.
 Shape classes and the nouns they are described with (a query names an object by its kind;
 the shape is what the geometry can tell about the kind):
 
-* ``cylinder``: round footprint, about as wide at the top as in the middle -> can, mug,
-  cup, bottle, cylinder;
+* ``cylinder``: round footprint, about as wide at the top as in the middle, or taller than
+  1.4 diameters whatever its top (a bottle, a can with a neck) -> can, mug, cup, bottle,
+  cylinder;
 * ``sphere``: round footprint, as tall as wide, narrower at the top -> ball, sphere;
 * ``box``: rectangular footprint with a flat top -> box, cube (equal sides), block, brick;
 * ``flat``: much wider than tall -> plate, bowl, dish;
@@ -138,7 +139,9 @@ def _shape_kind(local: np.ndarray, length: float, width: float, height: float) -
     if disc <= rect and disc <= 0.06 and width >= 0.55 * length:
         if top < 0.65 and 0.7 * length <= height <= 1.4 * length:
             return "sphere"
-        if top >= 0.65:
+        if top >= 0.65 or height > 1.4 * length:
+            # a tall round object whose top narrows is a bottle or a can with a neck
+            # (beer_can: top cover 0.64, height 2.5x its diameter), not a sphere
             return "cylinder"
     return "irregular"
 
