@@ -467,3 +467,57 @@ def test_sparse_depth_image_keeps_the_nearest_point_and_round_trips_the_png(tmp_
     path = tmp_path / "d.png"
     cv2.imwrite(str(path), png)
     np.testing.assert_allclose(read_depth_m(path, unit), depth, atol=unit / 2)
+
+
+def _forward_facing(root: Path) -> np.ndarray:
+    """An LLFF capture the way LLFF is shot: 3x3 photos from a hand moved in a plane across
+    the view, every camera looking the same way, down at a textured floor (80x60 px)."""
+    from neoedit.cameras.cameras import look_at
+
+    ahead = np.array([0.0, 0.4, -0.3])  # 37 deg below the horizon, over the floor
+    across = [np.array([1.0, 0.0, 0.0]), np.cross(ahead / np.linalg.norm(ahead), [1.0, 0, 0])]
+    eyes = [
+        np.array([0.0, -0.4, 0.3]) + a * across[0] + b * across[1]
+        for a in (-0.05, 0.0, 0.05)
+        for b in (-0.03, 0.0, 0.03)
+    ]
+    c2w = np.stack([look_at(e, e + ahead) for e in eyes])
+    k = cs.pinhole_k()
+    (root / "images").mkdir(parents=True)
+    tex = cs.floor_texture(size=512)
+    rows = []
+    for i, pose in enumerate(c2w):
+        image = cv2.resize(cs.render_floor(pose, k, tex, supersample=2), (80, 60), cv2.INTER_AREA)
+        cv2.imwrite(str(root / "images" / f"{i:04d}.png"), image)
+        down, right, back = -pose[:3, 1], pose[:3, 0], pose[:3, 2]
+        mat = np.c_[down, right, back, pose[:3, 3], [60, 80, cs.F / 4]]
+        rows.append(np.r_[mat.ravel(), 0.3, 1.5])
+    np.save(root / "poses_bounds.npy", np.array(rows))
+    return c2w
+
+
+def test_a_forward_facing_llff_capture_imports_and_trains(tmp_path):
+    """Forward-facing (LLFF-style) photos: no sparse points, the cameras' axes parallel.
+    The import finds a scene in front of them and a box holding what they see, and the
+    field trains to held-out photos it never saw."""
+    from neoedit.eval.evaluate import render_views
+    from neoedit.eval.metrics import psnr
+    from tests.conftest import tiny_train
+
+    _forward_facing(tmp_path / "cap")
+    assert main(["import", "llff", str(tmp_path / "cap"), "--out", str(tmp_path / "ds")]) == 0
+    data = load_scene_data(tmp_path / "ds")
+    assert data.depth_m is None and len(data.split["test"]) == 2
+    # the box holds the point every camera looks at (0.5 m ahead: the assumed distance)
+    c2w = data.cameras.camera_to_world
+    looked_at = c2w[:, :3, 3] - 0.5 * c2w[:, :3, 2]
+    box = data.scene_aabb_m
+    assert np.all((looked_at > box[0]) & (looked_at < box[1]))
+    scene = tiny_train(tmp_path / "ds", tmp_path / "scene", steps=300)
+    test = list(data.split["test"])
+    renders = render_views(scene, data, test)
+    truth = [data.images[i] / 255.0 for i in test]
+    held_out = np.mean([psnr(r["rgb"], t) for r, t in zip(renders, truth, strict=True)])
+    flat = np.mean([psnr(np.broadcast_to(t.reshape(-1, 3).mean(0), t.shape), t) for t in truth])
+    # measured: 26.9 dB held out, 18.2 dB for the flat-colour guess
+    assert held_out > flat + 5.0, (held_out, flat)
