@@ -414,15 +414,19 @@ def test_bad_options_are_refused_before_structure_from_motion(tmp_path, capsys, 
 
 def test_sparse_depth_puts_the_sfm_points_on_the_training_rays(tmp_path, capsys):
     """Each photo's depth image holds its observed sparse points: the ray the trainer casts
-    through such a pixel, at that z-depth, lands on a true scene point (within the pixel's
-    footprint); the rest of the image is 0 (no depth), and ``neo info`` calls it sparse."""
+    through such a pixel, at that z-depth, lands on a true scene point (within half the
+    pixel's footprint), through the undistortion and the downscale; the rest of the image
+    is 0 (no depth), and ``neo info`` calls it sparse."""
     import torch
 
     from neoedit.cameras.rays import CameraTensors
 
-    src = _capture(tmp_path / "cap")
+    k1, k2, p1, p2 = -0.12, 0.03, 0.002, -0.001
+    params = [cs.F, cs.F * 1.01, 161.0, 119.0, k1, k2, p1, p2]
+    src = _capture(tmp_path / "cap", "OPENCV", params, dist=np.array([k1, k2, p1, p2]))
     orient = OrientConfig(camera_distance_m=cs.TRUE_DISTANCE)
-    report = import_capture(read_colmap(src), tmp_path / "ds", ImportConfig(orient=orient))
+    cfg = ImportConfig(orient=orient, max_width=200)
+    report = import_capture(read_colmap(src), tmp_path / "ds", cfg)
     data = load_scene_data(tmp_path / "ds")
     assert data.depth_m is not None and 0 < (data.depth_m > 0).mean() < 0.05
     transform = np.asarray(report.orientation.transform)
@@ -436,15 +440,24 @@ def test_sparse_depth_puts_the_sfm_points_on_the_training_rays(tmp_path, capsys)
         rays = cams.rays(torch.full((len(v),), i), torch.as_tensor(v), torch.as_tensor(u))
         at = rays.origins + rays.directions * torch.as_tensor(z)[:, None] / rays.z_scale[:, None]
         gap = np.linalg.norm(at.numpy()[:, None] - truth[None], axis=-1).min(1)
-        footprint = z / data.cameras.fx[i] + 1e-3  # a pixel's width at that depth + the PNG step
+        # the pixel centre is at most 0.71 px from where the point projects
+        footprint = 0.75 * z / data.cameras.fx[i] + 1e-3  # + the PNG's 1 mm step
         assert np.all(gap < footprint), (i, gap.max())
     assert hits > 0.5 * len(truth)  # most points land in several photos
     main(["info", str(tmp_path / "ds")])
     assert "depth: sparse" in capsys.readouterr().out
-    import_capture(
-        read_colmap(src), tmp_path / "plain", ImportConfig(orient=orient, sparse_depth=False)
+    # stricter tracks keep fewer points; none left (or --no-sparse-depth): no depth at all
+    strict = import_capture(
+        read_colmap(src), tmp_path / "strict", ImportConfig(orient=orient, sparse_depth_min_track=8)
     )
-    assert load_scene_data(tmp_path / "plain").depth_m is None
+    assert 0 < strict.sparse_depth["points"] < report.sparse_depth["points"]
+    for name, cfg in (
+        ("none", ImportConfig(orient=orient, sparse_depth_min_track=N + 1)),
+        ("plain", ImportConfig(orient=orient, sparse_depth=False)),
+    ):
+        assert import_capture(read_colmap(src), tmp_path / name, cfg).sparse_depth is None
+        assert load_scene_data(tmp_path / name).depth_m is None
+        assert not (tmp_path / name / "depth").exists()
 
 
 def test_sparse_depth_image_keeps_the_nearest_point_and_round_trips_the_png(tmp_path):
@@ -454,16 +467,20 @@ def test_sparse_depth_image_keeps_the_nearest_point_and_round_trips_the_png(tmp_
 
     c2w = look_at(np.array([0.0, -1.0, 0.0]), np.zeros(3))  # looks along +y at the origin
     k = np.array([[100.0, 0, 16.5], [0, 100.0, 12.5], [0, 0, 1]])  # pixel centres
-    # two points on the optical axis (the nearer wins), one off to the side, one behind
-    pts = np.array([[0, 0, 0.0], [0, -0.5, 0], [0.05, 0, 0], [0, -2.0, 0]])
+    # two points on the optical axis (the nearer wins), one to the right, one above, and one
+    # behind the camera
+    pts = np.array([[0, 0, 0.0], [0, -0.5, 0], [0.05, 0, 0], [0, 0, 0.03], [0, -2.0, 0]])
     depth = sparse_depth_image(pts, c2w, k, (32, 24))
     assert depth[12, 16] == pytest.approx(0.5)
-    assert depth[12, 21] == pytest.approx(1.0) or depth[12, 11] == pytest.approx(1.0)
-    assert (depth > 0).sum() == 2  # the point behind the camera is left out
+    assert depth[12, 21] == pytest.approx(1.0)  # +x is right in the image: u grows
+    assert depth[9, 16] == pytest.approx(1.0)  # +z (up) is up in the image: v shrinks
+    assert (depth > 0).sum() == 3  # the point behind the camera is left out
+    far = sparse_depth_image(pts, c2w, k, (32, 24), min_depth=0.8)
+    assert (far > 0).sum() == 3 and far[12, 16] == pytest.approx(1.0)  # 0.5 m: too near
     unit = depth_unit(6.0)
     assert unit == pytest.approx(1e-3) and depth_unit(100.0) == pytest.approx(1e-2)
     png = to_png(depth, unit)
-    assert png.dtype == np.uint16 and (png > 0).sum() == 2
+    assert png.dtype == np.uint16 and (png > 0).sum() == 3
     path = tmp_path / "d.png"
     cv2.imwrite(str(path), png)
     np.testing.assert_allclose(read_depth_m(path, unit), depth, atol=unit / 2)

@@ -326,15 +326,18 @@ def _sparse_depth_trainer(sim_root: Path, tmp_path: Path, depth_rays: int, weigh
 
 
 def test_sparse_depth_is_sampled_and_shapes_the_geometry(sim_root: Path, tmp_path: Path):
-    """Sparse depth: every batch ends with pixels that have depth, and training on them
-    brings the held-out depth closer to the truth than colour alone (random background
+    """Sparse depth: every batch ends with pixels that have depth (their true depth as the
+    target), and training on them brings the held-out depth closer to the truth than the
+    same depth met only by chance in random batches, or colour alone (random background
     off, so the colour alone leaves the geometry ambiguous where the box is white)."""
     trainer, data, dense = _sparse_depth_trainer(sim_root, tmp_path, 128, 0.1)
-    img, v, u, _ = trainer.batch()
-    assert len(img) == 256 + 128
-    assert bool((trainer.depth[img[256:], v[256:], u[256:]] > 0).all())
+    assert trainer.depth is None and trainer.sparse_depth is not None
+    img, v, u, _, depth = trainer.batch()
+    assert len(img) == 256 + 128 and bool((depth[:256] == 0).all())
+    frames = torch.as_tensor(data.split["train"])[img[256:]]
+    np.testing.assert_allclose(depth[256:].numpy(), dense[frames, v[256:], u[256:]])
     errors = {}
-    for name, rays, weight in (("sparse", 128, 0.1), ("colour", 0, 0.0)):
+    for name, rays, weight in (("sparse", 128, 0.1), ("by chance", 0, 0.1), ("colour", 0, 0.0)):
         trainer, data, dense = _sparse_depth_trainer(sim_root, tmp_path, rays, weight)
         trainer.alpha = None
         for step in range(150):
@@ -348,5 +351,7 @@ def test_sparse_depth_is_sampled_and_shapes_the_geometry(sim_root: Path, tmp_pat
             mask = gt > 0
             err.append(np.abs(out["depth_z"].numpy()[mask] - gt[mask]))
         errors[name] = float(np.median(np.concatenate(err)))
-    # measured: 4.5 mm with the sparse depth, 8.5 cm from colour alone
+    # measured (make test): 6.4 mm with the sparse rays, 7.9 mm with the same depth met by
+    # chance in random batches (1 % of them), 8.5 cm from colour alone
+    assert errors["sparse"] < 0.9 * errors["by chance"], errors
     assert errors["sparse"] < 0.3 * errors["colour"], errors

@@ -42,6 +42,8 @@ class _ImportBase:
     for neo train (on beer_can it gives the floor and the can their surfaces)."""
     sparse_depth_min_track: int = 3
     """Only points seen by at least this many imported photos go into the depth images."""
+    sparse_depth_max_error_px: float = 2.0
+    """...and whose mean reprojection error in the model is at most this [px]."""
     orient: OrientConfig = field(default_factory=OrientConfig)
     check: PieceCheckConfig = field(default_factory=PieceCheckConfig)
     overwrite: bool = False
@@ -57,6 +59,7 @@ class _ImportBase:
             holdout_every=self.holdout_every,
             sparse_depth=self.sparse_depth,
             sparse_depth_min_track=self.sparse_depth_min_track,
+            sparse_depth_max_error_px=self.sparse_depth_max_error_px,
             orient=self.orient,
             pieces=self.check,
         )
@@ -122,6 +125,14 @@ def print_report(report: ImportReport) -> None:
         c.print(f"[yellow]{note}[/]")
     box = o.aabb_m.round(3).tolist()
     c.print(f"scene box (m): {box}")
+    if report.sparse_depth:
+        d = report.sparse_depth
+        c.print(
+            f"sparse depth: {d['points']} points, {d['pixels_per_photo_median']} pixels a photo "
+            "(median); neo train adds a depth loss on them"
+        )
+    else:
+        c.print("sparse depth: none (no usable points, or --no-sparse-depth)")
 
 
 @dataclass
@@ -144,6 +155,8 @@ class ProcessCommand:
     for neo train (on beer_can it gives the floor and the can their surfaces)."""
     sparse_depth_min_track: int = 3
     """Only points seen by at least this many imported photos go into the depth images."""
+    sparse_depth_max_error_px: float = 2.0
+    """...and whose mean reprojection error in the model is at most this [px]."""
     orient: OrientConfig = field(default_factory=OrientConfig)
     overwrite: bool = False
 
@@ -167,6 +180,7 @@ class ProcessCommand:
             holdout_every=self.holdout_every,
             sparse_depth=self.sparse_depth,
             sparse_depth_min_track=self.sparse_depth_min_track,
+            sparse_depth_max_error_px=self.sparse_depth_max_error_px,
             orient=self.orient,
         )
         cfg.check()

@@ -73,6 +73,8 @@ class Capture:
     """(P,3) sparse points (COLMAP); empty for LLFF."""
     point_tracks: list[np.ndarray] = field(default_factory=list)
     """Per point, the indices (into ``names``) of the images that observe it."""
+    point_errors: np.ndarray | None = None
+    """(P,) mean reprojection error of each point in the model [px] (COLMAP), if known."""
     bounds: np.ndarray | None = None
     """(N,2) near/far depth per image (LLFF), in model units."""
     unregistered: list[str] = field(default_factory=list)
@@ -85,18 +87,22 @@ class Capture:
     def centres(self) -> np.ndarray:
         return self.camera_to_world[:, :3, 3]
 
-    def subset(self, index: np.ndarray) -> Capture:
-        """The photos at ``index`` (sorted) and the points two of them observe."""
+    def subset(self, index: np.ndarray, whole_tracks: bool = False) -> Capture:
+        """The photos at ``index`` (sorted) and the points two of them observe (with
+        ``whole_tracks``: only the points no other photo observes)."""
         index = np.sort(np.asarray(index, dtype=np.int64))
         remap = np.full(len(self), -1, np.int64)
         remap[index] = np.arange(len(index))
         keep_pts, tracks = [], []
         for i, track in enumerate(self.point_tracks):
             seen = remap[track]
+            if whole_tracks and (seen < 0).any():
+                continue
             seen = seen[seen >= 0]
             if len(seen) >= 2:
                 keep_pts.append(i)
                 tracks.append(seen)
+        errors = self.point_errors
         return Capture(
             self.source,
             [self.names[i] for i in index],
@@ -105,6 +111,7 @@ class Capture:
             [self.lenses[i] for i in index],
             self.points[keep_pts] if keep_pts else np.zeros((0, 3)),
             tracks,
+            None if errors is None else errors[keep_pts] if keep_pts else np.zeros(0),
             None if self.bounds is None else self.bounds[index],
             self.unregistered,
         )

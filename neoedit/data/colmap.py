@@ -104,12 +104,13 @@ def read_colmap(src: Path, images: Path | None = None) -> Capture:
         lenses.append(_lens(rec.cameras[im.camera_id]))
         if not (image_dir / im.name).is_file():
             raise DataError(f"{model}: image {im.name} is registered but not in {image_dir}")
-    points, tracks = [], []
+    points, tracks, errors = [], [], []
     for p in rec.points3D.values():
         seen = np.unique([position[e.image_id] for e in p.track.elements if e.image_id in position])
         if len(seen) >= 2 and np.all(np.isfinite(p.xyz)):
             points.append(np.asarray(p.xyz, dtype=np.float64))
             tracks.append(seen.astype(np.int64))
+            errors.append(float(p.error))
     names = [im.name for im in registered]
     on_disk = sorted(
         str(p.relative_to(image_dir)) for p in image_dir.rglob("*") if p.suffix in IMAGE_SUFFIXES
@@ -122,5 +123,6 @@ def read_colmap(src: Path, images: Path | None = None) -> Capture:
         lenses=lenses,
         points=np.stack(points) if points else np.zeros((0, 3)),
         point_tracks=tracks,
+        point_errors=np.asarray(errors, dtype=np.float64),
         unregistered=sorted(set(on_disk) - set(names)),
     )

@@ -4,6 +4,7 @@ folder). ``neo import colmap|llff`` is a thin wrapper around :func:`import_captu
 
 from __future__ import annotations
 
+import shutil
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -12,9 +13,9 @@ from typing import Any
 import numpy as np
 
 from neoedit.data.capture import Capture, Lens, read_photo
-from neoedit.data.orient import Orientation, OrientConfig, orient
+from neoedit.data.orient import Orientation, OrientConfig, look_centre, orient
 from neoedit.data.pieces import PairCheck, PieceCheckConfig, find_pieces
-from neoedit.data.sparse_depth import depth_unit, observed_points, sparse_depth_image, to_png
+from neoedit.data.sparse_depth import SparseDepthWriter
 from neoedit.errors import DataError
 from neoedit.utils.io import atomic_directory, atomic_write_json
 from neoedit.utils.progress import track
@@ -39,6 +40,8 @@ class ImportConfig:
     sparse_depth_min_track: int = 3
     """Only points observed by at least this many imported photos go into the depth images
     (two-view points are the noisiest)."""
+    sparse_depth_max_error_px: float = 2.0
+    """...and whose mean reprojection error in the model is at most this many pixels."""
     orient: OrientConfig = field(default_factory=OrientConfig)
     pieces: PieceCheckConfig = field(default_factory=PieceCheckConfig)
 
@@ -46,6 +49,11 @@ class ImportConfig:
         """DataError naming the first option out of range (before any photo is read)."""
         if self.max_width is not None and self.max_width < 16:
             raise DataError(f"--max-width must be at least 16 px, got {self.max_width}")
+        if not self.sparse_depth_max_error_px > 0:
+            raise DataError(
+                "--sparse-depth-max-error-px must be positive, got "
+                f"{self.sparse_depth_max_error_px}"
+            )
         if self.sparse_depth_min_track < 2:
             raise DataError(
                 f"--sparse-depth-min-track must be >= 2, got {self.sparse_depth_min_track}"
@@ -75,6 +83,8 @@ class ImportReport:
     chosen: str
     orientation: Orientation
     checks: list[PairCheck]
+    sparse_depth: dict | None = None
+    """What the sparse depth holds (points, median pixels per photo, unit), None if none."""
 
 
 def _choose(capture: Capture, pieces: list[np.ndarray], choice: str) -> tuple[np.ndarray, str]:
@@ -182,7 +192,7 @@ def import_capture(
     frames: list[dict] = []
     train: list[str] = []
     test: list[str] = []
-    depth = SparseDepth(part, frame, cfg) if cfg.sparse_depth and len(part.points) else None
+    depth = _depth_writer(capture, index, frame, cfg) if cfg.sparse_depth else None
     with atomic_directory(out, overwrite=overwrite, kind="dataset") as tmp:
         (tmp / "images").mkdir()
         for j in track(range(len(part)), "undistorting photos"):
@@ -195,7 +205,9 @@ def import_capture(
             c2w[:3, :3] /= frame.scale
             frames.append(_frame_entry(name, c2w, k, image.shape))
             if depth is not None:
-                frames[-1]["depth_file_path"] = depth.write(tmp, name, j, c2w, k, image.shape)
+                rel = "depth/" + name.removeprefix("images/")
+                depth.write(tmp, rel, j, c2w, k, (image.shape[1], image.shape[0]))
+                frames[-1]["depth_file_path"] = rel
             (test if j % cfg.holdout_every == 0 else train).append(name)
         meta = {
             "camera_model": "OPENCV",
@@ -211,7 +223,11 @@ def import_capture(
                 "orientation": frame.to_dict(),
             },
         }
-        if depth is not None:
+        if depth is not None and sum(depth.pixels) == 0:  # no point survived: no depth
+            shutil.rmtree(tmp / "depth", ignore_errors=True)
+            for f in frames:
+                f.pop("depth_file_path", None)
+        elif depth is not None:
             meta["depth_unit_scale_factor"] = depth.unit
             meta["neoedit_import"]["sparse_depth"] = depth.summary()
         atomic_write_json(tmp / "transforms.json", meta)
@@ -219,40 +235,33 @@ def import_capture(
             extras(tmp)
     spans = [(capture.names[p[0]], capture.names[p[-1]], len(p)) for p in pieces]
     h, w = frames[0]["h"], frames[0]["w"]
-    return ImportReport(Path(out), len(frames), (w, h), spans, chosen, frame, checks)
+    summary = meta["neoedit_import"].get("sparse_depth")
+    return ImportReport(Path(out), len(frames), (w, h), spans, chosen, frame, checks, summary)
 
 
-class SparseDepth:
-    """Writes each photo's sparse depth image (:mod:`neoedit.data.sparse_depth`) in the
-    oriented frame, and counts what it wrote."""
-
-    def __init__(self, part: Capture, frame: Orientation, cfg: ImportConfig):
-        rot, shift = frame.transform[:3, :3], frame.transform[:3, 3]
-        self.points = part.points @ rot.T + shift
-        self.seen = observed_points(
-            self.points, part.point_tracks, len(part), cfg.sparse_depth_min_track
-        )
-        everything = np.vstack([self.points, part.centres @ rot.T + shift])
-        self.unit = depth_unit(float(np.linalg.norm(np.ptp(everything, axis=0))))
-        self.pixels: list[int] = []
-
-    def write(self, folder: Path, name: str, j: int, c2w: np.ndarray, k: np.ndarray, shape) -> str:
-        """Write photo ``j``'s depth PNG beside its image; its path relative to ``folder``."""
-        import cv2
-
-        depth = sparse_depth_image(self.points[self.seen[j]], c2w, k, (shape[1], shape[0]))
-        self.pixels.append(int((depth > 0).sum()))
-        rel = "depth/" + name.removeprefix("images/")
-        (folder / rel).parent.mkdir(parents=True, exist_ok=True)
-        if not cv2.imwrite(str(folder / rel), to_png(depth, self.unit)):
-            raise DataError(f"cannot write {folder / rel}")
-        return rel
-
-    def summary(self) -> dict:
-        return {
-            "points": int(len(np.unique(np.concatenate(self.seen)))) if self.seen else 0,
-            "pixels_per_photo_median": int(np.median(self.pixels)) if self.pixels else 0,
-        }
+def _depth_writer(
+    capture: Capture, index: np.ndarray, frame: Orientation, cfg: ImportConfig
+) -> SparseDepthWriter | None:
+    """The sparse depth of the imported photos ``index``, from the points whose whole track
+    lies among them (a point also seen by another piece was triangulated from poses that
+    disagree with this one), in the dataset's frame; None without points."""
+    part = capture.subset(index, whole_tracks=True)
+    if not len(part.points):
+        return None
+    rot, shift = frame.transform[:3, :3], frame.transform[:3, 3]
+    centres = part.centres @ rot.T + shift
+    look = look_centre(part) @ rot.T + shift
+    return SparseDepthWriter(
+        part.points @ rot.T + shift,
+        part.point_tracks,
+        centres,
+        np.asarray(frame.aabb_m),
+        part.point_errors,
+        cfg.sparse_depth_min_track,
+        cfg.sparse_depth_max_error_px,
+        # the trainer's automatic near plane: nothing nearer can be a surface
+        min_depth=0.25 * float(np.median(np.linalg.norm(centres - look, axis=1))),
+    )
 
 
 def part_span(capture: Capture, index: np.ndarray) -> str:

@@ -12,8 +12,12 @@ written into its depth image (no occlusion test needed); pixels without a point 
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import torch
+
+from neoedit.errors import DataError
 
 MAX_PNG = 65535
 SPARSE_DEPTH_FRACTION = 0.05
@@ -35,26 +39,27 @@ def project_points(
 
 
 def sparse_depth_image(
-    points: np.ndarray, camera_to_world: np.ndarray, k: np.ndarray, size: tuple[int, int]
+    points: np.ndarray,
+    camera_to_world: np.ndarray,
+    k: np.ndarray,
+    size: tuple[int, int],
+    min_depth: float = 1e-9,
 ) -> np.ndarray:
     """(H,W) float32 z-depth image [scene units] of the points (P,3) the photo observes; 0
-    where no point lands; the nearest point where several share a pixel."""
+    where no point lands (or only points nearer than ``min_depth``); the nearest point
+    where several share a pixel."""
     w, h = size
-    depth = np.zeros((h, w), np.float32)
-    if not len(points):
-        return depth
-    uv, z = project_points(points, camera_to_world, k)
-    col, row = np.floor(uv[:, 0]).astype(np.int64), np.floor(uv[:, 1]).astype(np.int64)
-    ok = (z > 0) & (col >= 0) & (col < w) & (row >= 0) & (row < h)
-    col, row, z = col[ok], row[ok], z[ok]
-    order = np.argsort(-z)  # far first, so the nearest point is written last
-    depth[row[order], col[order]] = z[order]
-    return depth
+    depth = np.full((h, w), np.inf, np.float32)
+    if len(points):
+        uv, z = project_points(points, camera_to_world, k)
+        col, row = np.floor(uv[:, 0]), np.floor(uv[:, 1])
+        ok = (z > max(min_depth, 1e-9)) & (col >= 0) & (col < w) & (row >= 0) & (row < h)
+        rows, cols = row[ok].astype(np.int64), col[ok].astype(np.int64)
+        np.minimum.at(depth, (rows, cols), z[ok].astype(np.float32))
+    return np.where(np.isfinite(depth), depth, 0.0).astype(np.float32)
 
 
-def observed_points(
-    points: np.ndarray, tracks: list[np.ndarray], photos: int, min_track: int
-) -> list[np.ndarray]:
+def observed_points(tracks: list[np.ndarray], photos: int, min_track: int) -> list[np.ndarray]:
     """Per photo, the indices of the points (with at least ``min_track`` observers) it sees."""
     seen: list[list[int]] = [[] for _ in range(photos)]
     for i, track in enumerate(tracks):
@@ -63,6 +68,64 @@ def observed_points(
             for j in observers:
                 seen[int(j)].append(i)
     return [np.asarray(s, np.int64) for s in seen]
+
+
+class SparseDepthWriter:
+    """Writes each photo's sparse depth PNG from points (P,3) already in the dataset's frame,
+    and counts what it wrote. Kept: points inside ``box`` (2,3) (the field cannot put a
+    surface beyond it), with a reprojection error up to ``max_error_px`` (when ``errors``
+    are known) and at least ``min_track`` observers; per photo, those farther than
+    ``min_depth`` (the trainer's near plane)."""
+
+    def __init__(
+        self,
+        points: np.ndarray,
+        tracks: list[np.ndarray],
+        centres: np.ndarray,
+        box: np.ndarray,
+        errors: np.ndarray | None = None,
+        min_track: int = 3,
+        max_error_px: float = 2.0,
+        min_depth: float = 0.0,
+    ):
+        keep = np.all((points >= box[0]) & (points <= box[1]), axis=1)
+        if errors is not None:
+            keep &= errors <= max_error_px
+        self.points = points[keep]
+        self.seen = observed_points(
+            [t for t, k in zip(tracks, keep, strict=True) if k], len(centres), min_track
+        )
+        self.min_depth = min_depth
+        reach = max(
+            (
+                float(np.linalg.norm(self.points[s] - c, axis=1).max())
+                for s, c in zip(self.seen, centres, strict=True)
+                if len(s)
+            ),
+            default=1.0,
+        )
+        self.unit = depth_unit(reach)
+        self.pixels: list[int] = []
+
+    def write(
+        self, folder: Path, rel: str, j: int, c2w: np.ndarray, k: np.ndarray, size: tuple[int, int]
+    ) -> None:
+        """Write photo ``j``'s depth image (``size`` = (w, h)) to ``folder / rel``."""
+        import cv2
+
+        depth = sparse_depth_image(self.points[self.seen[j]], c2w, k, size, self.min_depth)
+        self.pixels.append(int((depth > 0).sum()))
+        (folder / rel).parent.mkdir(parents=True, exist_ok=True)
+        if not cv2.imwrite(str(folder / rel), to_png(depth, self.unit)):
+            raise DataError(f"cannot write {folder / rel}")
+
+    def summary(self) -> dict:
+        used = np.unique(np.concatenate(self.seen)) if self.seen else np.zeros(0)
+        return {
+            "points": int(len(used)),
+            "pixels_per_photo_median": int(np.median(self.pixels)) if self.pixels else 0,
+            "unit_m": self.unit,
+        }
 
 
 def depth_unit(max_depth: float) -> float:
@@ -80,12 +143,20 @@ def to_png(depth: np.ndarray, unit: float) -> np.ndarray:
     return counts.astype(np.uint16)
 
 
-def sparse_pixels(depth: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor | None:
-    """(K,3) image index, row, column of the pixels of ``depth`` (N,H,W) that have a depth
-    (and pass ``mask``), when they are sparse; None when the depth is dense or empty."""
+def is_sparse(depth: np.ndarray | torch.Tensor) -> bool:
+    """Depth (N,H,W) on fewer than SPARSE_DEPTH_FRACTION of the pixels (and on some)."""
+    count = int((depth > 0).sum())
+    total = depth.numel() if isinstance(depth, torch.Tensor) else depth.size
+    return 0 < count < SPARSE_DEPTH_FRACTION * total
+
+
+def sparse_pixels(
+    depth: torch.Tensor, mask: torch.Tensor | None = None
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """(K,3) image index, row, column and (K,) depth of the pixels of ``depth`` (N,H,W) that
+    have one (and pass ``mask``)."""
     valid = depth > 0
     if mask is not None:
         valid &= mask.bool()
-    if not valid.any() or float(valid.float().mean()) >= SPARSE_DEPTH_FRACTION:
-        return None
-    return valid.nonzero()
+    where = valid.nonzero()
+    return where, depth[where[:, 0], where[:, 1], where[:, 2]]

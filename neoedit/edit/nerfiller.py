@@ -27,6 +27,7 @@ import scipy.sparse.linalg
 import torch
 
 from neoedit.data import SceneData
+from neoedit.data.sparse_depth import is_sparse
 from neoedit.edit.history import new_version
 from neoedit.edit.inpaint import Inpainter, inpaint_views, make_inpainter
 from neoedit.edit.language_update import LanguageEdit, update_language
@@ -124,8 +125,11 @@ def _check_parent(
         )
     if not boxes:
         raise NeoError("nothing to remove: give a box")
-    if cfg.depth and data.depth_m is None:
-        raise NeoError(f"{data.root} has no metric depth: use the variant without depth")
+    if cfg.depth and (data.depth_m is None or is_sparse(data.depth_m)):
+        raise NeoError(
+            f"{data.root} has no metric depth (at most structure-from-motion points): use "
+            "the variant without depth"
+        )
     if len(data) != len(parent.scan_cameras()[0]):
         raise NeoError(f"{data.root} is not the scan this scene was trained on")
     if (parent.meta.step if cfg.steps is None else cfg.steps) < 1:

@@ -11,6 +11,7 @@ import numpy as np
 
 from neoedit.cameras.rays import CameraTensors
 from neoedit.data import SceneData
+from neoedit.data.sparse_depth import is_sparse
 from neoedit.eval.metrics import depth_rmse_m, psnr, reprojection_error, ssim
 from neoedit.geometry import OrientedBox
 from neoedit.geometry.masks import masks_for_boxes
@@ -45,8 +46,10 @@ def evaluate(
     max_views: int | None = None,
 ) -> dict[str, Any]:
     """Metrics of ``scene`` rendered at the ``split`` cameras of ``data`` (ground truth);
-    ``max_views`` evenly chosen of them when given."""
+    ``max_views`` evenly chosen of them when given. Depth RMSE needs dense depth (a
+    sensor's, NEO-Sim's): structure-from-motion points are no ground truth (NaN)."""
     indices = [int(i) for i in data.indices(split)]
+    dense_depth = data.depth_m is not None and not is_sparse(data.depth_m)
     if max_views is not None and 0 < max_views < len(indices):
         pick = np.linspace(0, len(indices) - 1, max_views).round().astype(int)
         indices = [indices[k] for k in pick]
@@ -75,7 +78,7 @@ def evaluate(
             m["ssim"].append(ssim(pred, gt, mask))
             m["depth_rmse_m"].append(
                 depth_rmse_m(renders[k]["depth_z"], data.depth_m[i], mask)
-                if data.depth_m is not None
+                if dense_depth and data.depth_m is not None
                 else float("nan")
             )
             if len(indices) > 1:

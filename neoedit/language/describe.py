@@ -9,8 +9,8 @@ Shape classes and the nouns they are described with (a query names an object by 
 the shape is what the geometry can tell about the kind):
 
 * ``cylinder``: round footprint, about as wide at the top as in the middle, or taller than
-  1.4 diameters whatever its top (a bottle, a can with a neck) -> can, mug, cup, bottle,
-  cylinder;
+  1.4 diameters whatever its top (a bottle, a can with a neck; a cone or a vase too) ->
+  can, mug, cup, bottle, cylinder;
 * ``sphere``: round footprint, as tall as wide, narrower at the top -> ball, sphere;
 * ``box``: rectangular footprint with a flat top -> box, cube (equal sides), block, brick;
 * ``flat``: much wider than tall -> plate, bowl, dish;

@@ -58,6 +58,11 @@ class GeometricConfig:
     """Points higher than this above the plane can belong to an object."""
     min_support_fraction: float = 0.15
     """The dominant plane must hold this share of the surface points to be the support."""
+    max_support_tilt_deg: float = 30.0
+    """Only planes whose normal is within this angle of world +z can be the support (z is
+    up in NEO-Sim, in nerfstudio's convention and after ``neo import``; queries check the
+    same): a wall or a backdrop with more surface points is not the floor (beer_can, a
+    1000-step field: a plane with a horizontal normal won)."""
     voxel_m: float = 0.004
     """Object points are thinned to one per voxel of this size before clustering."""
     eps_m: float = 0.015
@@ -133,8 +138,16 @@ class Discovery:
 
 
 def support_plane(points: np.ndarray, up_hint: np.ndarray, cfg: GeometricConfig) -> Plane:
-    """The dominant plane of ``points`` refitted to its inliers, normal along ``up_hint``."""
-    found = dominant_plane(points, cfg.inlier_m, cfg.iterations, cfg.seed)
+    """The dominant plane of ``points`` tilted at most ``cfg.max_support_tilt_deg`` from
+    world +z, refitted to its inliers, normal along ``up_hint``."""
+    found = dominant_plane(
+        points,
+        cfg.inlier_m,
+        cfg.iterations,
+        cfg.seed,
+        np.array([0.0, 0.0, 1.0]),
+        cfg.max_support_tilt_deg,
+    )
     if found is None or found[2] < cfg.min_support_fraction:
         share = 0.0 if found is None else found[2]
         raise NoSupportPlane(

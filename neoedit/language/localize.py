@@ -78,15 +78,23 @@ class QueryResult:
 
 
 def dominant_plane(
-    points_m: np.ndarray, inlier_m: float = 0.005, iterations: int = 256, seed: int = 0
+    points_m: np.ndarray,
+    inlier_m: float = 0.005,
+    iterations: int = 256,
+    seed: int = 0,
+    near_normal: np.ndarray | None = None,
+    max_angle_deg: float = 90.0,
 ) -> tuple[np.ndarray, np.ndarray, float] | None:
     """The plane of the most points (:func:`~neoedit.geometry.plane.fit_plane`: RANSAC over
-    at most 20000 points, refitted to its inliers): (unit normal (3,), a point on it (3,),
-    inlier fraction), or None for fewer than 50 points or only degenerate triples. The
-    normal's sign is arbitrary."""
+    at most 20000 points, refitted to its inliers; with ``near_normal``, among the planes
+    within ``max_angle_deg`` of it): (unit normal (3,), a point on it (3,), inlier
+    fraction), or None for fewer than 50 points or only degenerate triples. The normal's
+    sign is arbitrary."""
     if len(points_m) < 50:
         return None
-    plane = fit_plane(points_m, inlier_m, iterations, seed)
+    plane = fit_plane(
+        points_m, inlier_m, iterations, seed, near_normal=near_normal, max_angle_deg=max_angle_deg
+    )
     if plane is None:
         return None
     return plane.normal, plane.normal * plane.offset, float(plane.inliers.mean())

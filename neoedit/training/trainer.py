@@ -16,7 +16,7 @@ from neoedit.cameras.cameras import orbit_center
 from neoedit.cameras.rays import CameraTensors
 from neoedit.data import SceneData, load_scene_data
 from neoedit.data.scan import scan_record
-from neoedit.data.sparse_depth import sparse_pixels
+from neoedit.data.sparse_depth import is_sparse, sparse_pixels
 from neoedit.errors import NeoError
 from neoedit.fields.patched import PatchedField
 from neoedit.fields.radiance import RadianceField, RadianceFieldConfig
@@ -146,14 +146,18 @@ class Trainer:
             else torch.as_tensor(data.loss_mask[train], device=device)
         )
         self.depth = None
+        """Dense z-depth (T,H,W) [m] of the training views (a sensor's, NEO-Sim's), or None."""
+        self.sparse_depth: tuple[torch.Tensor, torch.Tensor] | None = None
+        """Sparse depth (structure-from-motion points): the (K,3) image, row, column of the
+        pixels that have one and their (K,) z-depths; its rays are drawn separately."""
         if cfg.depth_loss_weight > 0 and data.depth_m is not None:
-            self.depth = torch.as_tensor(data.depth_m[train], device=device)
-        self.depth_pixels = (
-            sparse_pixels(self.depth, self.loss_mask)
-            if self.depth is not None and cfg.sparse_depth_rays > 0
-            else None
-        )
-        """(K,3) image, row, column of the pixels with depth when it is sparse, else None."""
+            depth = data.depth_m[train]
+            if cfg.sparse_depth_rays > 0 and is_sparse(depth):
+                mask = None if data.loss_mask is None else torch.as_tensor(data.loss_mask[train])
+                where, values = sparse_pixels(torch.as_tensor(depth), mask)
+                self.sparse_depth = (where.to(device), values.to(device))
+            else:
+                self.depth = torch.as_tensor(depth, device=device)
         self.generator = torch.Generator(device=device).manual_seed(cfg.seed)
         self.extra_losses: list[Callable[[int], torch.Tensor]] = []
         """More loss terms, called with the step number (edits add theirs here)."""
@@ -163,25 +167,31 @@ class Trainer:
             field_param_groups(scene.field, cfg.lr, 1.0, cfg.weight_decay_mlp), cfg.lr, device
         )
 
-    def batch(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Random training pixels: image index, row, column and target colour (N,3) in [0,1]
-        (with sparse depth, ``sparse_depth_rays`` pixels that have depth come last)."""
+    def batch(
+        self,
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor | None]:
+        """Random training pixels: image index, row, column, target colour (N,3) in [0,1] and
+        target z-depth (N,) [m] (0: none; None without depth). With sparse depth,
+        ``sparse_depth_rays`` pixels that have one follow the ``rays_per_batch`` random ones
+        (they train the depth only, so the colour loss stays that of random pixels)."""
         t, h, w = self.images.shape[:3]
         n = self.cfg.rays_per_batch
         img = torch.randint(0, t, (n,), device=self.device, generator=self.generator)
         v = torch.randint(0, h, (n,), device=self.device, generator=self.generator)
         u = torch.randint(0, w, (n,), device=self.device, generator=self.generator)
-        if self.depth_pixels is not None:
+        depth = None if self.depth is None else self.depth[img, v, u]
+        if self.sparse_depth is not None:
+            where, values = self.sparse_depth
             pick = torch.randint(
                 0,
-                len(self.depth_pixels),
+                len(values),
                 (self.cfg.sparse_depth_rays,),
                 device=self.device,
                 generator=self.generator,
             )
-            extra = self.depth_pixels[pick]
-            img, v, u = (torch.cat([a, extra[:, k]]) for k, a in enumerate((img, v, u)))
-        return img, v, u, self.images[img, v, u].float() / 255.0
+            img, v, u = (torch.cat([a, where[pick, k]]) for k, a in enumerate((img, v, u)))
+            depth = torch.cat([torch.zeros(n, device=self.device), values[pick]])
+        return img, v, u, self.images[img, v, u].float() / 255.0, depth
 
     def learning_rate(self, step: int, seconds: float) -> float:
         """Exponential decay from lr to lr * lr_final_factor over the run, measured in steps or,
@@ -199,7 +209,7 @@ class Trainer:
         self.optimizer.param_groups[1]["lr"] = lr * self.cfg.mlp_lr_factor
         if step % meta.grid.update_every == 0:
             grid.update(field.density, step, self.generator)
-        img, v, u, target = self.batch()
+        img, v, u, target, depth_gt = self.batch()
         rays = self.cams.rays(self.train_idx[img], v, u)
         background = self.scene.background
         if self.alpha is not None and isinstance(background, torch.Tensor):
@@ -212,9 +222,10 @@ class Trainer:
         out = render_rays(
             field, use_grid, rays, meta.render, background, jitter=True, generator=self.generator
         )
-        sq_err = ((out["rgb"] - target) ** 2).mean(-1)
+        n = self.cfg.rays_per_batch  # the random pixels (sparse-depth rays follow them)
+        sq_err = ((out["rgb"][:n] - target[:n]) ** 2).mean(-1)
         if self.loss_mask is not None:
-            keep = self.loss_mask[img, v, u].float()
+            keep = self.loss_mask[img[:n], v[:n], u[:n]].float()
             mse = (sq_err * keep).sum() / keep.sum().clamp_min(1.0)
         else:
             mse = sq_err.mean()
@@ -225,14 +236,13 @@ class Trainer:
                 + self.cfg.distortion_loss_weight
                 * distortion_loss(out["weights"], out["s_lo"], out["s_hi"]).mean()
             )
-        if self.depth is not None:
-            gt = self.depth[img, v, u]
-            valid = gt > 0
+        if depth_gt is not None:
+            valid = depth_gt > 0
             if self.loss_mask is not None:
                 valid &= self.loss_mask[img, v, u]
             if valid.any():
                 loss = loss + self.cfg.depth_loss_weight * torch.mean(
-                    torch.abs(out["depth_z"][valid] - gt[valid])
+                    torch.abs(out["depth_z"][valid] - depth_gt[valid])
                 )
         if self.cfg.sparsity_loss_weight > 0:
             aabb = field.aabb
@@ -283,6 +293,8 @@ class Trainer:
         t_train = t_start = meta.train_seconds
         first = meta.step
         ema = None
+        extra = cfg.sparse_depth_rays if self.sparse_depth is not None else 0
+        rays_per_step = cfg.rays_per_batch + extra  # every ray rendered, depth-only ones too
         with make_progress() as progress:
             task = progress.add_task("train", total=cfg.max_steps, completed=meta.step, status="")
             for step in range(meta.step, cfg.max_steps):
@@ -291,7 +303,7 @@ class Trainer:
                 t_train += time.perf_counter() - t0
                 ema = mse if ema is None else 0.9 * ema + 0.1 * mse
                 meta.step, meta.train_seconds = step + 1, t_train
-                rays_per_s = (step + 1 - first) * cfg.rays_per_batch / max(t_train - t_start, 1e-9)
+                rays_per_s = (step + 1 - first) * rays_per_step / max(t_train - t_start, 1e-9)
                 last = step + 1 == cfg.max_steps or (
                     cfg.max_minutes is not None and t_train >= 60 * cfg.max_minutes
                 )

@@ -276,7 +276,7 @@ def check_train_options(
     )
     for name in ("rays_per_batch", "sparsity_points"):
         _require(_is_int(getattr(train, name), 1), f"--{name.replace('_', '-')} must be at least 1")
-    for name in ("eval_every", "eval_views", "checkpoint_every"):
+    for name in ("eval_every", "eval_views", "checkpoint_every", "sparse_depth_rays"):
         _require(_is_int(getattr(train, name), 0), f"--{name.replace('_', '-')} must be >= 0")
     for name in ("lr", "lr_final_factor"):
         value = getattr(train, name)
