@@ -53,16 +53,7 @@ class _ImportBase:
         raise NotImplementedError
 
     def run(self) -> None:
-        cfg = ImportConfig(
-            max_width=self.max_width,
-            piece=self.piece,
-            holdout_every=self.holdout_every,
-            sparse_depth=self.sparse_depth,
-            sparse_depth_min_track=self.sparse_depth_min_track,
-            sparse_depth_max_error_px=self.sparse_depth_max_error_px,
-            orient=self.orient,
-            pieces=self.check,
-        )
+        cfg = import_config(self, self.check)
         cfg.check()
         check_writable_output(
             self.out, [self.src, self.images], kind="dataset", overwrite=self.overwrite
@@ -102,6 +93,22 @@ ImportCommands = Annotated[
         "import", description="A COLMAP model or LLFF capture -> a nerfstudio dataset."
     ),
 ]
+
+
+def import_config(
+    cmd: _ImportBase | ProcessCommand, pieces: PieceCheckConfig | None = None
+) -> ImportConfig:
+    """The import options of a command (``neo import`` also sets the piece check)."""
+    return ImportConfig(
+        max_width=cmd.max_width,
+        piece=cmd.piece,
+        holdout_every=cmd.holdout_every,
+        sparse_depth=cmd.sparse_depth,
+        sparse_depth_min_track=cmd.sparse_depth_min_track,
+        sparse_depth_max_error_px=cmd.sparse_depth_max_error_px,
+        orient=cmd.orient,
+        pieces=pieces or PieceCheckConfig(),
+    )
 
 
 def print_report(report: ImportReport) -> None:
@@ -174,15 +181,7 @@ class ProcessCommand:
         is_video = src.is_file() and src.suffix in VIDEO_SUFFIXES
         if src.is_file() and not is_video:
             raise NeoError(f"{src}: not a photo folder or a video ({', '.join(VIDEO_SUFFIXES)})")
-        cfg = ImportConfig(
-            max_width=self.max_width,
-            piece=self.piece,
-            holdout_every=self.holdout_every,
-            sparse_depth=self.sparse_depth,
-            sparse_depth_min_track=self.sparse_depth_min_track,
-            sparse_depth_max_error_px=self.sparse_depth_max_error_px,
-            orient=self.orient,
-        )
+        cfg = import_config(self)
         cfg.check()
         check_writable_output(self.out, [src], kind="dataset", overwrite=self.overwrite)
         Path(self.out).absolute().parent.mkdir(parents=True, exist_ok=True)
