@@ -10,7 +10,7 @@ import tyro
 from rich.console import Console
 
 from neoedit.data import load_scene_data
-from neoedit.data.sparse_depth import SPARSE_DEPTH_FRACTION
+from neoedit.data.sparse_depth import is_sparse
 
 
 @dataclass
@@ -32,9 +32,7 @@ class InfoCommand:
         depth = "no"
         if d.depth_m is not None:
             share = float((d.depth_m > 0).mean())
-            depth = (
-                f"sparse ({share:.2%} of the pixels)" if share < SPARSE_DEPTH_FRACTION else "yes"
-            )
+            depth = f"sparse ({share:.2%} of the pixels)" if is_sparse(d.depth_m) else "yes"
         c.print(
             f"depth: {depth}; instance labels: "
             f"{'yes' if d.instance_ids is not None else 'no'}; loss masks: {'yes' if d.loss_mask is not None else 'no'}"

@@ -17,25 +17,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from neoedit.cameras.cameras import Cameras
 from neoedit.errors import DataError
 
 MAX_PNG = 65535
 SPARSE_DEPTH_FRACTION = 0.05
 """Depth on fewer pixels than this is sparse (structure-from-motion points), not a sensor's."""
-
-
-def project_points(
-    points: np.ndarray, camera_to_world: np.ndarray, k: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Pixel coordinates (P,2) (u right, v down, pixel centres at +0.5) and z-depth (P,) of
-    world points (P,3) in a pinhole camera (OpenGL camera-to-world (4,4), K (3,3))."""
-    rot, centre = camera_to_world[:3, :3], camera_to_world[:3, 3]
-    cam = (points - centre) @ rot  # OpenGL camera axes: x right, y up, z back
-    z = -cam[:, 2]
-    safe = np.where(z > 1e-9, z, np.inf)
-    u = k[0, 0] * cam[:, 0] / safe + k[0, 2]
-    v = -k[1, 1] * cam[:, 1] / safe + k[1, 2]
-    return np.stack([u, v], 1), z
 
 
 def sparse_depth_image(
@@ -51,7 +38,8 @@ def sparse_depth_image(
     w, h = size
     depth = np.full((h, w), np.inf, np.float32)
     if len(points):
-        uv, z = project_points(points, camera_to_world, k)
+        camera = Cameras.shared(camera_to_world[None], k[0, 0], k[1, 1], k[0, 2], k[1, 2], w, h)
+        uv, z = camera.project(0, points)
         col, row = np.floor(uv[:, 0]), np.floor(uv[:, 1])
         ok = (z > max(min_depth, 1e-9)) & (col >= 0) & (col < w) & (row >= 0) & (row < h)
         rows, cols = row[ok].astype(np.int64), col[ok].astype(np.int64)
