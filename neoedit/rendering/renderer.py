@@ -84,6 +84,7 @@ def sample_rays(
     boxes: Sequence[OrientedBox] = (),
     jitter: bool = False,
     generator: torch.Generator | None = None,
+    intervals: RayIntervals | None = None,
 ) -> RaySamples:
     """Two-stage sampling on each ray's valid domain (paper Sec. III-A).
 
@@ -92,8 +93,11 @@ def sample_rays(
        spread over all of them; without a grid, query ``n_coarse_samples`` even bins.
        Empty bins have zero optical depth.
     2. Fine: ``n_samples`` bins by PDF resampling of those weights on the same domain.
+
+    ``intervals`` replaces the valid domain (scene box, near plane, ``boxes`` cut out).
     """
-    intervals = ray_intervals(field, rays, cfg.near_m, boxes)
+    if intervals is None:
+        intervals = ray_intervals(field, rays, cfg.near_m, boxes)
     total = intervals.total
     n = len(rays)
     device = total.device
@@ -151,10 +155,12 @@ def render_rays(
     boxes: Sequence[OrientedBox] = (),
     jitter: bool = False,
     generator: torch.Generator | None = None,
+    intervals: RayIntervals | None = None,
 ) -> dict[str, torch.Tensor]:
     """rgb (N,3), depth (N,) ray distance [m], depth_z (N,) z-depth [m], accumulation (N,),
-    weights (N,M) and the samples. With a grid, samples in empty cells skip the network."""
-    samples = sample_rays(field, grid, rays, cfg, boxes, jitter, generator)
+    weights (N,M) and the samples. With a grid, samples in empty cells skip the network.
+    ``intervals``: the domain to sample instead of each ray's valid one."""
+    samples = sample_rays(field, grid, rays, cfg, boxes, jitter, generator, intervals)
     n, m = samples.t_mid.shape
     pts = samples.points.reshape(-1, 3)
     dirs = rays.directions[:, None, :].expand(n, m, 3).reshape(-1, 3)
