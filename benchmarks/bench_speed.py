@@ -9,7 +9,9 @@ Sections (run alone, on an otherwise idle machine):
   after a fixed number of steps (``--fixed-steps``, default 1000) for "same results".
   Run it with ``PYTHONPATH`` pointing at an older checkout to get that code's figures.
 - render: the test views of the trained scene at 320x240, training sampler vs fast march.
-- remove: wall time of ``neo remove`` (the scene's removed object, by name) on that scene.
+- remove: wall time of ``neo remove --box`` (the scene's removed object, its true box) on
+  that scene, ``--repeat`` times (median), and the edit's Out / Full PSNR on the post
+  scan's test views when the scan has one.
 - contention: 120 training steps alone, two trainings side by side, a training beside a
   render loop, and a training beside a ``nice``d busy loop (Python); wall time of each.
 Writes ``OUT/<section>.json``.
@@ -169,13 +171,33 @@ def remove_section(args: argparse.Namespace) -> dict:
     box = args.out / "remove_box.json"
     box.write_text(json.dumps(action["source_box"]))
     out = args.out / "removed"
-    subprocess.run(["rm", "-rf", str(out)], check=True)
-    t0 = time.perf_counter()
-    subprocess.run(neo("remove", str(scene_dir), "--box", str(box), "--out", str(out)), check=True)
-    wall = time.perf_counter() - t0
-    edit = json.loads((out / "scene.json").read_text())["edits"][-1]
-    result = {"object": action["object"], "wall_s": round(wall, 1), "edit": edit.get("seconds")}
-    print(f"  {result}", flush=True)
+    runs = []
+    for _ in range(args.repeat):
+        subprocess.run(["rm", "-rf", str(out)], check=True)
+        t0 = time.perf_counter()
+        argv = neo("remove", str(scene_dir), "--box", str(box), "--out", str(out))
+        subprocess.run(argv, check=True)
+        wall = time.perf_counter() - t0
+        edit = json.loads((out / "scene.json").read_text())["edits"][-1]
+        runs.append({"wall_s": round(wall, 1), "edit": edit.get("seconds"), **edit["timings"]})
+        print(f"  {runs[-1]}", flush=True)
+    result = {
+        "object": action["object"],
+        "runs": runs,
+        "median_edit_s": float(np.median([r["edit"] or math.nan for r in runs])),
+        "median_wall_s": float(np.median([r["wall_s"] for r in runs])),
+    }
+    post = args.data.parent / "post"
+    if (post / "transforms.json").is_file():  # the edit's quality: the post scan's test views
+        from neoedit.eval.evaluate import evaluate
+        from neoedit.geometry import OrientedBox
+
+        metrics = evaluate(
+            load_scene(out), load_scene_data(post), "test",
+            out_boxes=[OrientedBox.from_dict(action["source_box"])],
+        )  # fmt: skip
+        result.update(out_psnr=metrics["out"]["psnr"], full_psnr=metrics["full"]["psnr"])
+    print(f"  {dict((k, v) for k, v in result.items() if k != 'runs')}", flush=True)
     return result
 
 
@@ -263,6 +285,9 @@ def main() -> None:
     )
     parser.add_argument("--only", nargs="*", choices=list(SECTIONS), default=list(SECTIONS))
     parser.add_argument("--fixed-steps", type=int, default=1000)
+    parser.add_argument(
+        "--repeat", type=int, default=1, help="remove: runs (the figures: their median)"
+    )
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     print("$ python " + shlex.join(sys.argv))

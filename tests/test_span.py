@@ -79,18 +79,27 @@ def test_span_render_equals_the_whole_ray():
 
 def test_the_span_holds_every_part_of_the_ray_inside_the_boxes():
     rays = _rays(200, 1)
-    boxes = [REGION[0], OrientedBox((0.3, 0.0, 0.5), (0.2, 0.4, 0.2), 30.0)]
-    start, end = torch.full((200,), 0.5), torch.full((200,), 6.0)
+    boxes = [
+        REGION[0],
+        OrientedBox((0.3, 0.0, 0.5), (0.2, 0.4, 0.2), 30.0),
+        OrientedBox((0.0, 0.0, -4.0), (3.0, 3.0, 0.5), 0.0),  # behind the cameras
+        OrientedBox((0.0, 0.0, 3.5), (6.0, 6.0, 0.5), 0.0),  # past the end of every ray
+    ]
+    # valid domains that start before, inside or after the region (the near plane)
+    start = torch.linspace(0.5, 3.6, 200)[
+        torch.randperm(200, generator=torch.Generator().manual_seed(2))
+    ]
+    end = torch.full((200,), 6.0)
     s0, s1 = region_span(rays, boxes, start, end)
     t = torch.linspace(0.0, 6.0, 3001)
     pts = rays.origins[:, None, :] + t[None, :, None] * rays.directions[:, None, :]
     inside = torch.zeros(pts.shape[:2], dtype=torch.bool)
     for box in boxes:
         inside |= points_in_box(pts.reshape(-1, 3), box).reshape(inside.shape)
-    inside &= (t >= 0.5)[None, :]
+    inside &= (t[None, :] >= start[:, None]) & (t[None, :] <= end[:, None])
     hit = inside.any(1)
-    assert hit.sum() > 20 and (~hit).sum() > 5
-    assert torch.all(s0[~hit] == s1[~hit])
+    assert hit.sum() > 20 and (~hit).sum() > 20
+    assert torch.all(s0[~hit] == s1[~hit]) and torch.all(s0 >= start) and torch.all(s1 <= end)
     first = t[inside.float().argmax(1)]
     last = t[len(t) - 1 - inside.flip(1).float().argmax(1)]
     assert torch.all(s0[hit] <= first[hit] + 1e-3) and torch.all(s1[hit] >= last[hit] - 1e-3)
@@ -115,3 +124,28 @@ def test_the_density_rider_answers_both_queries_in_one_call():
     torch.testing.assert_close(sigma, ref_sigma)
     torch.testing.assert_close(rgb, ref_rgb)
     torch.testing.assert_close(rider.sigma, ThreeBalls().density(extra))
+
+
+def test_the_density_rider_passes_gradients_and_later_calls_through():
+    class Scaled(torch.nn.Module):
+        def __init__(self):
+            super().__init__()
+            self.scale = torch.nn.Parameter(torch.tensor(2.0))
+            self.register_buffer("aabb", torch.tensor([[-2.0] * 3, [2.0] * 3]))
+
+        def forward(self, pts, dirs):
+            sigma = self.scale * pts.norm(dim=-1)
+            return sigma, torch.sigmoid(pts)
+
+        def density(self, pts):
+            return self.forward(pts, pts)[0]
+
+    field = Scaled()
+    extra = torch.tensor([[1.0, 0.0, 0.0], [0.0, 2.0, 0.0]])
+    rider = DensityRider(field, extra)
+    sigma, _ = rider(torch.zeros((0, 3)), torch.zeros((0, 3)))  # no rendered sample at all
+    assert len(sigma) == 0
+    again, _ = rider(torch.ones(3, 3), torch.ones(3, 3))
+    assert len(again) == 3  # a second query is the field's own
+    rider.sigma.sum().backward()
+    torch.testing.assert_close(field.scale.grad, torch.tensor(3.0))  # d/ds (s*1 + s*2)

@@ -35,6 +35,7 @@ from neoedit.edit.inpaint import Inpainter, inpaint_views
 from neoedit.edit.points import original_box_rays, support_points
 from neoedit.edit.removal_loss import RemovalLoss
 from neoedit.edit.visibility import seen_by_cameras
+from neoedit.errors import NeoError
 from neoedit.fields.patched import edit_region
 from neoedit.fields.radiance import Field
 from neoedit.fields.suppressed import with_removals
@@ -114,6 +115,12 @@ class RefineConfig:
     decimetres at most: fewer than a whole ray's 32 + 32; on NEO-Sim removal_1 the edit's
     Out-PSNR is the same at 24 and 32, within 0.2 dB, see benchmarks/RESULTS.md)."""
     seed: int = 0
+
+    def check(self, where: str = "--refine") -> None:
+        """Refuse settings the training cannot run with (before any work starts)."""
+        for name in ("span_samples", "virtual_rays", "rounds"):
+            if getattr(self, name) < 1:
+                raise NeoError(f"{where}.{name.replace('_', '-')} must be at least 1")
 
 
 def crop_window(masks: list[np.ndarray], margin_px: int) -> tuple[slice, slice]:
@@ -217,6 +224,44 @@ def _round_status(k: int, rounds: int, xi: float, step: int, ema: float) -> str:
     return f"round {k}/{rounds} xi {xi:.2f} | loss {ema:.4f}"
 
 
+def _patch_training(
+    scene: Scene,
+    boxes: list[OrientedBox],
+    virtual: Cameras,
+    cfg: RefineConfig,
+    scan_cameras: Cameras | None,
+) -> tuple[RemovalLoss, torch.optim.Optimizer, list[np.ndarray]]:
+    """Add the patch owning the boxes' region to ``scene``; its loss (M_v pixels of the
+    virtual views' crop window, empty targets), its optimiser and the crop masks M_v."""
+    device = scene.field.aabb.device
+    gen = torch.Generator().manual_seed(cfg.seed)
+    scene.field.requires_grad_(False)
+    region = [edit_region(b, cfg.below_m) for b in boxes]
+    originals = None
+    if not cfg.mask_conditioned and scan_cameras is not None:
+        originals = original_box_rays(scene, scan_cameras, boxes, 16 * cfg.original_rays, gen)
+    keep_pts, keep_alpha = support_points(scene.field, boxes, cfg.below_m, gen, device)
+    patch = scene.patched().add_patch(region).requires_grad_(True)
+    optimizer = make_adam(field_param_groups(patch, cfg.lr, cfg.mlp_lr_factor), cfg.lr, device)
+    # M_v in the virtual views and the crop window
+    masks_full = [
+        np.any([project_box_mask(virtual, i, b) for b in boxes], axis=0)
+        for i in range(len(virtual))
+    ]
+    window = crop_window(masks_full, cfg.crop_margin_px)
+    masks = [m[window] for m in masks_full]
+    pix = torch.nonzero(torch.as_tensor(np.stack(masks), device=device))  # (P,3) view,row,col
+    targets = torch.zeros((len(masks), *masks[0].shape, 3), device=device)
+    loss = RemovalLoss(
+        scene=scene, cfg=cfg, boxes=boxes, region=region,
+        vcams=CameraTensors(virtual, device), window=window, pix=pix,
+        targets=targets, target_depth=torch.zeros(targets.shape[:3], device=device),
+        keep_pts=keep_pts, keep_alpha=keep_alpha, originals=originals, gen=gen,
+        train_gen=torch.Generator(device=device).manual_seed(cfg.seed),
+    )  # fmt: skip
+    return loss, optimizer, masks
+
+
 def refine_removal(
     scene: Scene,
     boxes: list[OrientedBox],
@@ -235,39 +280,15 @@ def refine_removal(
     strips). Returns timings."""
     t0 = time.perf_counter()
     device = scene.field.aabb.device
-    gen = torch.Generator().manual_seed(cfg.seed)
-    scene.field.requires_grad_(False)
-    region = [edit_region(b, cfg.below_m) for b in boxes]
-    originals = None
-    if not cfg.mask_conditioned and scan_cameras is not None:
-        originals = original_box_rays(scene, scan_cameras, boxes, 16 * cfg.original_rays, gen)
-    keep_pts, keep_alpha = support_points(scene.field, boxes, cfg.below_m, gen, device)
-    patch = scene.patched().add_patch(region).requires_grad_(True)
-    optimizer = make_adam(field_param_groups(patch, cfg.lr, cfg.mlp_lr_factor), cfg.lr, device)
-
-    # M_v in the virtual views and the crop window
-    masks_full = [
-        np.any([project_box_mask(virtual, i, b) for b in boxes], axis=0)
-        for i in range(len(virtual))
-    ]
-    window = crop_window(masks_full, cfg.crop_margin_px)
-    masks = [m[window] for m in masks_full]
-    vcams = CameraTensors(virtual, device)
-    pix = torch.nonzero(torch.as_tensor(np.stack(masks), device=device))  # (P,3) view,row,col
-    targets = torch.zeros((len(masks), *masks[0].shape, 3), device=device)
-    target_depth = torch.zeros(targets.shape[:3], device=device)
-    t = time.perf_counter()
-    loss_step = RemovalLoss(
-        scene, cfg, boxes, region, vcams, window, pix, targets, target_depth,
-        keep_pts, keep_alpha, originals, gen,
-        torch.Generator(device=device).manual_seed(cfg.seed),
-    )  # fmt: skip
-    outside_s = time.perf_counter() - t
+    loss_step, optimizer, masks = _patch_training(scene, boxes, virtual, cfg, scan_cameras)
+    region, window, pix = loss_step.region, loss_step.window, loss_step.pix
+    targets, target_depth = loss_step.targets, loss_step.target_depth
+    timings = {"render_s": 0.0, "visibility_s": 0.0, "inpaint_s": 0.0, "train_s": 0.0}
+    timings["setup_s"] = time.perf_counter() - t0  # the patch, L_keep's targets, the first march
+    if loss_step.outside is not None:
+        timings["outside_s"] = 0.0  # the marches after each grid refresh
     rounds = max(cfg.rounds, 1)
     per_round = int(np.ceil(cfg.steps / rounds))
-    timings = {"render_s": 0.0, "visibility_s": 0.0, "inpaint_s": 0.0, "train_s": 0.0}
-    if loss_step.outside is not None:
-        timings["outside_s"] = outside_s
     step = 0
     holes = masks
     preview_rgb = np.zeros((len(masks), *masks[0].shape, 3), np.uint8)  # set in round 0
@@ -289,6 +310,10 @@ def refine_removal(
                 refresh_grid(scene.grid, scene.field.density, cells_in_boxes(scene.grid, region))
             rendered, depth = render_crops(field_, scene, virtual, window, cut)
             timings["render_s"] += time.perf_counter() - t
+            if not preview and loss_step.outside is not None:
+                t = time.perf_counter()
+                loss_step.march_outside()  # the refreshed cells reach a little outside the region
+                timings["outside_s"] += time.perf_counter() - t
             if preview:
                 target_depth.copy_(depth)
                 preview_rgb = np.stack(rendered)

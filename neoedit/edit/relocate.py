@@ -171,6 +171,7 @@ def move(
             "--preview, --method seal3d or --edit.student field)"
         )
     check_motions(parent, motions)
+    cfg.remove.refine.check("--edit.remove.refine")
     t0 = time.perf_counter()
     sources = working_boxes(parent, [m.box for m in motions], cfg.remove)
     transforms = [np.asarray(m.transform, dtype=np.float64) for m in motions]

@@ -8,7 +8,8 @@ Two things keep a step cheap:
 * virtual rays are sampled on the part that crosses the patch's region only; what lies in
   front of and behind it is frozen and was marched once (:mod:`neoedit.rendering.span`);
 * the regulariser points ride along in the rendered samples' network query, so the patch's
-  hash table gets one gradient per step, not two (:class:`DensityRider`).
+  hash table gets one gradient per step instead of two (:class:`DensityRider`; the ablation
+  without mask conditioning renders a second batch, a second query).
 """
 
 from __future__ import annotations
@@ -34,7 +35,8 @@ if TYPE_CHECKING:
 
 class DensityRider:
     """``field`` (same interface), whose first colour query also evaluates the density at
-    ``extra`` points in the same network pass; that density is left in ``sigma``."""
+    ``extra`` points in the same network pass; that density is left in ``sigma``. (The
+    colour MLP runs on the extra points too: cheaper than a second hash-table lookup.)"""
 
     def __init__(self, field: Field, extra: torch.Tensor):
         self.field = field
@@ -61,10 +63,10 @@ class DensityRider:
         return sigma[:n], rgb[:n]
 
 
-@dataclass
+@dataclass(eq=False, repr=False)
 class RemovalLoss:
-    """Callable loss of the patch of ``scene``; ``targets`` / ``target_depth`` (V,h,w,...)
-    are filled by the caller each round. ``pix`` (P,3) are the (view, row, col) pixels of
+    """Callable loss of the patch of ``scene``; the caller fills ``targets`` (V,h,w,3) each
+    round and ``target_depth`` (V,h,w) once. ``pix`` (P,3) are the (view, row, col) pixels of
     M_v in the crop ``window`` of the virtual cameras ``vcams``."""
 
     scene: Scene
@@ -85,15 +87,18 @@ class RemovalLoss:
 
     def __post_init__(self) -> None:
         self.device = self.pix.device
-        render = self.scene.meta.render
         n = self.cfg.span_samples
-        self.span_cfg = dataclasses.replace(render, n_coarse_samples=n, n_samples=n)
+        self.span_cfg = dataclasses.replace(self.scene.meta.render, n_coarse_samples=n, n_samples=n)
+        self.march_outside()
+
+    def march_outside(self) -> None:
+        """(Re)march the frozen parts of every M_v ray (after the grid changes)."""
         if self.cfg.span_only and len(self.pix):
             self.outside = outside_segments(
                 self.scene.field,
                 self.scene.grid,
                 self.pixel_rays(self.pix),
-                render,
+                self.scene.meta.render,
                 self.scene.background,
                 self.region,
             )

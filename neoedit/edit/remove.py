@@ -90,6 +90,7 @@ def remove(
     if not boxes:
         raise NeoError("nothing to remove: give a prompt or --box")
     check_edit_boxes(parent, boxes)  # inside the scene box, not empty
+    cfg.refine.check()
     t0 = time.perf_counter()
     work = working_boxes(parent, boxes, cfg)
     record = {

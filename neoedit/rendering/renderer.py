@@ -96,6 +96,8 @@ def sample_rays(
 
     ``intervals`` replaces the valid domain (scene box, near plane, ``boxes`` cut out).
     """
+    if intervals is not None and boxes:
+        raise ValueError("give removal boxes or the intervals to sample, not both")
     if intervals is None:
         intervals = ray_intervals(field, rays, cfg.near_m, boxes)
     total = intervals.total

@@ -59,16 +59,17 @@ def region_span(
     rays: RayBundle, boxes: Sequence[OrientedBox], start: torch.Tensor, end: torch.Tensor
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """(s0, s1) (N,): the smallest segment of each ray's valid [start, end] holding every
-    part of it inside ``boxes``; s0 = s1 for rays that miss them."""
+    part of it inside ``boxes``; s0 = s1 = end for rays that miss them there."""
     lo = torch.full_like(start, float("inf"))
     hi = torch.full_like(start, -float("inf"))
     for box in boxes:
         t_in, t_out = ray_oriented_box(rays.origins, rays.directions, box)
-        hit = t_out > t_in
+        t_in, t_out = torch.maximum(t_in, start), torch.minimum(t_out, end)
+        hit = t_out > t_in  # within the valid domain (not behind the camera, not past b)
         lo = torch.where(hit, torch.minimum(lo, t_in), lo)
         hi = torch.where(hit, torch.maximum(hi, t_out), hi)
-    s0 = torch.minimum(torch.maximum(lo, start), end)  # a miss: lo = inf -> s0 = end
-    return s0, torch.maximum(torch.minimum(hi, end), s0)
+    s0 = torch.minimum(lo, end)  # a miss: lo = inf -> s0 = end
+    return s0, torch.maximum(hi, s0)
 
 
 @torch.no_grad()
@@ -134,13 +135,12 @@ def render_span(
         field, grid, rays, cfg, zero, jitter=jitter, generator=generator, intervals=span
     )
     acc_in = inner["accumulation"]
+    weighted_in = (inner["weights"] * inner["t_mid"]).sum(-1)
     t_front = outside.front_trans
     rgb = outside.front_rgb + t_front[:, None] * (
         inner["rgb"] + (1.0 - acc_in)[:, None] * outside.back_rgb
     )
     acc = (1.0 - t_front) + t_front * (acc_in + (1.0 - acc_in) * outside.back_acc)
-    weighted = outside.front_depth + t_front * (
-        inner["depth"] * acc_in + (1.0 - acc_in) * outside.back_depth
-    )
+    weighted = outside.front_depth + t_front * (weighted_in + (1.0 - acc_in) * outside.back_depth)
     depth = weighted / acc.clamp_min(1e-6)
     return {"rgb": rgb, "depth": depth, "depth_z": depth * rays.z_scale, "accumulation": acc}
