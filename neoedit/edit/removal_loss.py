@@ -83,7 +83,8 @@ class RemovalLoss:
     originals: tuple[RayBundle, torch.Tensor] | None
     gen: torch.Generator
     train_gen: torch.Generator
-    outside: OutsideSegments | None = None
+    outside: OutsideSegments | None = dataclasses.field(default=None, init=False)
+    """The frozen parts of every M_v ray (:meth:`march_outside`); None: whole rays."""
 
     def __post_init__(self) -> None:
         self.device = self.pix.device

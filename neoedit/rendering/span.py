@@ -48,9 +48,6 @@ class OutsideSegments:
     back_acc: torch.Tensor  # (N,) opacity of [s1, b]
     back_depth: torch.Tensor  # (N,) sum of weight * ray distance over [s1, b] (unit light)
 
-    def __len__(self) -> int:
-        return len(self.span_start)
-
     def __getitem__(self, index: torch.Tensor | slice) -> OutsideSegments:
         return OutsideSegments(*(getattr(self, f.name)[index] for f in dataclasses.fields(self)))
 
