@@ -117,12 +117,17 @@ class OrientedBox:
         return OrientedBox(tuple(center.tolist()), self.size_m, yaw)
 
     @classmethod
-    def fit_with_yaw(cls, points: np.ndarray, yaw_deg: float, trim: float = 0.0) -> OrientedBox:
+    def fit_with_yaw(
+        cls, points: np.ndarray, yaw_deg: float, trim: float | tuple[float, float, float] = 0.0
+    ) -> OrientedBox:
         """Tightest box of a given yaw around points (N,3); ``trim`` > 0 leaves that fraction
-        of the points out on each side of each axis (robust to stragglers)."""
+        of the points out on each side of each axis (robust to stragglers), one value for all
+        three axes or one per axis (local x, y, z)."""
         rot = rot_z(yaw_deg)
         local = np.asarray(points, dtype=np.float64) @ rot  # into the yaw-aligned frame
-        lo, hi = np.quantile(local, trim, axis=0), np.quantile(local, 1.0 - trim, axis=0)
+        frac = np.broadcast_to(np.asarray(trim, dtype=np.float64), (3,))
+        lo = np.array([np.quantile(local[:, k], frac[k]) for k in range(3)])
+        hi = np.array([np.quantile(local[:, k], 1.0 - frac[k]) for k in range(3)])
         center = rot @ ((lo + hi) / 2)
         return cls(
             tuple(center.tolist()), tuple(np.maximum(hi - lo, 1e-4).tolist()), wrap_deg(yaw_deg)

@@ -57,10 +57,25 @@ class QueryConfig:
     min_samples: int = 12
     min_cluster_points: int = 25
     """Smallest cluster accepted as an object (fewer -> no match)."""
-    trim: float = 0.01
-    """Fraction of the cluster's points left out on each side of each box axis."""
+    trim: float = 0.003
+    """Fraction of the cluster's points left out on each side of the footprint's two axes.
+    Small, so a thin part with few points (a mug's handle) stays in the box: the cluster is
+    already its DBSCAN core points, free of sparse stragglers."""
+    trim_top: float = 0.02
+    """Fraction left out at the top (and bottom, which is then extended down to the support):
+    a reconstructed top surface is fuzzy by a few mm, which matters for flat objects."""
     support_search_m: float = 0.1
     """How far below the cluster to look for the surface it stands on."""
+
+    def check(self) -> None:
+        """Refuse values that cannot describe a query (a NeoError naming the option)."""
+        for name in ("trim", "trim_top"):
+            value = getattr(self, name)
+            if not 0.0 <= value < 0.5:
+                raise NeoError(f"--query.{name.replace('_', '-')} must be in [0, 0.5), not {value}")
+        for name in ("voxel_m", "eps_m"):
+            if not getattr(self, name) > 0:
+                raise NeoError(f"--query.{name.replace('_', '-')} must be > 0")
 
 
 @dataclass
@@ -169,6 +184,7 @@ def localize(
 ) -> QueryResult:
     """Box of the object ``prompt`` names, from unit language features (P,D) at points (P,3)."""
     cfg = cfg or QueryConfig()
+    cfg.check()
     if not prompt.strip():
         raise NeoError('empty prompt: say which object to find, e.g. "red mug"')
     emb = text.encode([prompt, *cfg.canonical])
@@ -200,7 +216,8 @@ def localize(
         raise NoMatch(prompt, best, cfg.threshold, too_few)
     cluster = points_m[members]
     # yaw from the minimum-area rectangle, extents trimmed of the outermost points per side
-    box = OrientedBox.fit_with_yaw(cluster, OrientedBox.fit_to_points(cluster).yaw_deg, cfg.trim)
+    trim = (cfg.trim, cfg.trim, cfg.trim_top)
+    box = OrientedBox.fit_with_yaw(cluster, OrientedBox.fit_to_points(cluster).yaw_deg, trim)
     support = support_height(points_m, cluster, box, cfg)
     if support is not None:
         box = box.extended_down(support)
