@@ -66,6 +66,11 @@ class QueryConfig:
     a reconstructed top surface is fuzzy by a few mm, which matters for flat objects."""
     support_search_m: float = 0.1
     """How far below the cluster to look for the surface it stands on."""
+    elongation: float = 1.15
+    """A footprint whose principal spreads (standard deviations) differ by more than this
+    ratio takes its yaw from its long axis rather than from the minimum-area rectangle..."""
+    area_slack: float = 0.15
+    """...when that box's footprint is at most this fraction larger."""
 
     def check(self) -> None:
         """Refuse values that cannot describe a query (a NeoError naming the option)."""
@@ -76,6 +81,8 @@ class QueryConfig:
         for name in ("voxel_m", "eps_m"):
             if not getattr(self, name) > 0:
                 raise NeoError(f"--query.{name.replace('_', '-')} must be > 0")
+        if not (self.elongation >= 1.0 and self.area_slack >= 0.0):
+            raise NeoError("--query.elongation must be >= 1 and --query.area-slack >= 0")
 
 
 @dataclass
@@ -215,13 +222,30 @@ def localize(
     if len(members) < cfg.min_cluster_points:
         raise NoMatch(prompt, best, cfg.threshold, too_few)
     cluster = points_m[members]
-    # yaw from the minimum-area rectangle, extents trimmed of the outermost points per side
-    trim = (cfg.trim, cfg.trim, cfg.trim_top)
-    box = OrientedBox.fit_with_yaw(cluster, OrientedBox.fit_to_points(cluster).yaw_deg, trim)
+    box = footprint_box(cluster, cfg)
     support = support_height(points_m, cluster, box, cfg)
     if support is not None:
         box = box.extended_down(support)
     return QueryResult(prompt, box, float(np.median(rel[members])), best, cluster)
+
+
+def footprint_box(cluster: np.ndarray, cfg: QueryConfig) -> OrientedBox:
+    """Yaw-only box of a cluster (K,3), its extents trimmed of the outermost points per side.
+
+    The yaw is the minimum-area rectangle's, which lies along the faces of boxy objects. An
+    elongated footprint takes the yaw of its principal axis instead, unless that box is
+    clearly larger: a mug's minimum-area rectangle is diagonal (its handle fits into a
+    corner), its principal axis runs through the handle, as the object's own frame does."""
+    trim = (cfg.trim, cfg.trim, cfg.trim_top)
+    box = OrientedBox.fit_with_yaw(cluster, OrientedBox.fit_to_points(cluster).yaw_deg, trim)
+    xy = cluster[:, :2] - cluster[:, :2].mean(0)
+    spread, axes = np.linalg.eigh(xy.T @ xy)
+    if spread[1] <= cfg.elongation**2 * max(spread[0], 1e-18):
+        return box
+    yaw = float(np.degrees(np.arctan2(axes[1, 1], axes[0, 1])))
+    along = OrientedBox.fit_with_yaw(cluster, yaw, trim)
+    slack = (1.0 + cfg.area_slack) * box.size_m[0] * box.size_m[1]
+    return along if along.size_m[0] * along.size_m[1] <= slack else box
 
 
 def best_cluster(labels: np.ndarray, core: np.ndarray, rel: np.ndarray, min_points: int) -> int:
