@@ -133,6 +133,8 @@ CASES = [
     C("eval-ok", "eval {scene} --data {data} --json m.json --images img", 0, "psnr", creates=("m.json", "img")),
     C("query-json-over-image", "query {scene} mug --json {ws}/notes.txt --views 0", 2, "not a previous JSON result", FILE),
     C("query-out-user-folder", "query {scene} mug --out notes", 2, "not a neoedit output", NOTES),
+    C("query-bad-trim", "query {scene} mug --query.trim 0.7", 2, "--query.trim must be in"),
+    C("remove-bad-query-option", "remove {scene} mug --out v1 --query.elongation 0.5", 2, "--query.elongation must be"),
     C("sim-scene-over-user-folder", "sim scene spec.yaml --out notes --overwrite", 2, "not a neoedit output", chain(SPEC, NOTES)),
     C("sim-scene-over-scene", "sim scene spec.yaml --out {scene} --overwrite", 2, "a neoedit scene", SPEC),
     C("sim-benchmark-over-file", "sim benchmark --profile small --only removal_1 --out notes.txt", 2, "not a folder", FILE),

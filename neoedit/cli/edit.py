@@ -44,6 +44,7 @@ class RemoveCommand:
     device: str = "auto"
 
     def run(self) -> None:
+        self.query.check()  # before any loading or training
         from neoedit.edit.remove import remove, write_report
         from neoedit.scene import save_scene
 
@@ -140,6 +141,7 @@ class MoveCommand:
     device: str = "auto"
 
     def run(self) -> None:
+        self.query.check()  # before any loading or training
         from neoedit.edit.relocate import Motion, move
         from neoedit.edit.remove import write_report
         from neoedit.scene import save_scene

@@ -45,6 +45,7 @@ class GraspCommand:
     device: str = "auto"
 
     def run(self) -> None:
+        self.query.check()  # before any loading or training
         from neoedit.cli.edit import find_boxes
         from neoedit.grasp.antipodal import plan_grasps, scene_density
         from neoedit.scene import load_scene

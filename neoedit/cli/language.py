@@ -41,6 +41,7 @@ class QueryCommand:
     device: str = "auto"
 
     def run(self) -> None:
+        self.query.check()  # before any loading or training
         from neoedit.language.localize import NoMatch, query_scene
         from neoedit.language.relevancy import split_prompts
         from neoedit.language.text import load_text_encoder

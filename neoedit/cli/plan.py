@@ -45,6 +45,7 @@ class PlanCommand:
     device: str = "auto"
 
     def run(self) -> None:
+        self.query.check()  # before any loading or training
         from neoedit.cli.edit import find_boxes
         from neoedit.edit.plan import apply_action, load_plan, plan_boxes
         from neoedit.edit.remove import write_report

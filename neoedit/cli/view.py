@@ -47,6 +47,7 @@ class ViewCommand:
     device: str = "auto"
 
     def run(self) -> None:
+        self.query.check()  # before any loading or training
         from neoedit.utils.device import resolve_device
         from neoedit.viewer import require_viser, serve
         from neoedit.viewer.state import ViewerConfig

@@ -1,9 +1,10 @@
 """Prompt -> oriented 3-D box (paper, section III opening).
 
 relevancy of the language feature at every stored surface point -> points close to the best
-relevancy -> DBSCAN (largest cluster) -> yaw-only box: footprint and yaw from the minimum-area
-rectangle on the ground plane, height from the cluster's z range, extended down to the
-support surface found just around the cluster.
+relevancy -> DBSCAN (the best-matching cluster) -> yaw-only box (:func:`footprint_box`): yaw
+from the minimum-area rectangle on the ground plane, or from the principal axis of an
+elongated footprint; extents lightly trimmed; extended down to the support surface found
+just around the cluster.
 
 "Up" is world +z (NEO-Sim, and nerfstudio data after its default orientation). For other
 data :func:`estimate_up` estimates it when the language field is trained: the normal of the
@@ -62,13 +63,14 @@ class QueryConfig:
     Small, so a thin part with few points (a mug's handle) stays in the box: the cluster is
     already its DBSCAN core points, free of sparse stragglers."""
     trim_top: float = 0.02
-    """Fraction left out at the top (and bottom, which is then extended down to the support):
-    a reconstructed top surface is fuzzy by a few mm, which matters for flat objects."""
+    """Fraction left out at the top (the bottom is trimmed by ``trim`` only): a reconstructed
+    top surface is fuzzy by a few mm, which matters for flat objects."""
     support_search_m: float = 0.1
     """How far below the cluster to look for the surface it stands on."""
     elongation: float = 1.15
     """A footprint whose principal spreads (standard deviations) differ by more than this
-    ratio takes its yaw from its long axis rather than from the minimum-area rectangle..."""
+    ratio takes its yaw from its long axis rather than from the minimum-area rectangle...
+    (NEO-Sim's mugs: 1.20-1.30 from their scans' surface points; cubes and balls 1.01-1.14)"""
     area_slack: float = 0.15
     """...when that box's footprint is at most this fraction larger."""
 
@@ -80,9 +82,21 @@ class QueryConfig:
                 raise NeoError(f"--query.{name.replace('_', '-')} must be in [0, 0.5), not {value}")
         for name in ("voxel_m", "eps_m"):
             if not getattr(self, name) > 0:
-                raise NeoError(f"--query.{name.replace('_', '-')} must be > 0")
+                raise NeoError(
+                    f"--query.{name.replace('_', '-')} must be > 0, not {getattr(self, name)}"
+                )
+        if not 0.0 <= self.best_quantile <= 1.0:
+            raise NeoError(f"--query.best-quantile must be in [0, 1], not {self.best_quantile}")
+        if self.min_samples < 1 or self.min_cluster_points < 3:
+            raise NeoError(
+                "--query.min-samples must be >= 1 and --query.min-cluster-points >= 3, not "
+                f"{self.min_samples} and {self.min_cluster_points}"
+            )
         if not (self.elongation >= 1.0 and self.area_slack >= 0.0):
-            raise NeoError("--query.elongation must be >= 1 and --query.area-slack >= 0")
+            raise NeoError(
+                "--query.elongation must be >= 1 and --query.area-slack >= 0, not "
+                f"{self.elongation} and {self.area_slack}"
+            )
 
 
 @dataclass
@@ -237,15 +251,20 @@ def footprint_box(cluster: np.ndarray, cfg: QueryConfig) -> OrientedBox:
     clearly larger: a mug's minimum-area rectangle is diagonal (its handle fits into a
     corner), its principal axis runs through the handle, as the object's own frame does."""
     trim = (cfg.trim, cfg.trim, cfg.trim_top)
+    bottom = float(np.quantile(cluster[:, 2], cfg.trim))  # the top alone gets trim_top
     box = OrientedBox.fit_with_yaw(cluster, OrientedBox.fit_to_points(cluster).yaw_deg, trim)
     xy = cluster[:, :2] - cluster[:, :2].mean(0)
-    spread, axes = np.linalg.eigh(xy.T @ xy)
-    if spread[1] <= cfg.elongation**2 * max(spread[0], 1e-18):
-        return box
-    yaw = float(np.degrees(np.arctan2(axes[1, 1], axes[0, 1])))
-    along = OrientedBox.fit_with_yaw(cluster, yaw, trim)
-    slack = (1.0 + cfg.area_slack) * box.size_m[0] * box.size_m[1]
-    return along if along.size_m[0] * along.size_m[1] <= slack else box
+    spread, axes = np.linalg.eigh(xy.T @ xy)  # ascending: axes[:, 1] is the long axis
+    if spread[1] > cfg.elongation**2 * max(spread[0], 1e-18):
+        yaw = float(np.degrees(np.arctan2(axes[1, 1], axes[0, 1])))
+        yaw = yaw - 180.0 if yaw > 90.0 else yaw + 180.0 if yaw <= -90.0 else yaw  # (-90, 90]
+        along = OrientedBox.fit_with_yaw(cluster, yaw, trim)
+        if (
+            along.size_m[0] * along.size_m[1]
+            <= (1.0 + cfg.area_slack) * box.size_m[0] * box.size_m[1]
+        ):
+            box = along
+    return box.with_bottom(min(bottom, box.center_m[2] - box.size_m[2] / 2))
 
 
 def best_cluster(labels: np.ndarray, core: np.ndarray, rel: np.ndarray, min_points: int) -> int:
