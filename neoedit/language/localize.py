@@ -63,8 +63,9 @@ class QueryConfig:
     Small, so a thin part with few points (a mug's handle) stays in the box: the cluster is
     already its DBSCAN core points, free of sparse stragglers."""
     trim_top: float = 0.02
-    """Fraction left out at the top (the bottom is trimmed by ``trim`` only): a reconstructed
-    top surface is fuzzy by a few mm, which matters for flat objects."""
+    """Fraction left out at the top and at the bottom: a reconstructed top surface is fuzzy
+    by a few mm, which matters for flat objects, and so is the contact with the table (the
+    bottom is then extended down to the support when one is found below the cluster)."""
     support_search_m: float = 0.1
     """How far below the cluster to look for the surface it stands on."""
     elongation: float = 1.15
@@ -251,7 +252,6 @@ def footprint_box(cluster: np.ndarray, cfg: QueryConfig) -> OrientedBox:
     clearly larger: a mug's minimum-area rectangle is diagonal (its handle fits into a
     corner), its principal axis runs through the handle, as the object's own frame does."""
     trim = (cfg.trim, cfg.trim, cfg.trim_top)
-    bottom = float(np.quantile(cluster[:, 2], cfg.trim))  # the top alone gets trim_top
     box = OrientedBox.fit_with_yaw(cluster, OrientedBox.fit_to_points(cluster).yaw_deg, trim)
     xy = cluster[:, :2] - cluster[:, :2].mean(0)
     spread, axes = np.linalg.eigh(xy.T @ xy)  # ascending: axes[:, 1] is the long axis
@@ -264,7 +264,7 @@ def footprint_box(cluster: np.ndarray, cfg: QueryConfig) -> OrientedBox:
             <= (1.0 + cfg.area_slack) * box.size_m[0] * box.size_m[1]
         ):
             box = along
-    return box.with_bottom(min(bottom, box.center_m[2] - box.size_m[2] / 2))
+    return box
 
 
 def best_cluster(labels: np.ndarray, core: np.ndarray, rel: np.ndarray, min_points: int) -> int:
