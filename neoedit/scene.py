@@ -69,6 +69,10 @@ class LanguageMeta:
     """Final mean cosine distance to the teacher on training surface points."""
     up: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 1.0])
     """World up axis used for boxes (z in NEO-Sim; checked against the cameras)."""
+    cloud_rays_per_pixel: float = 0.0
+    """Rays per training pixel whose surface points make the query cloud (after its
+    subsampling); edits re-render edited boxes at this density. 0: not recorded (scenes
+    trained before it was), estimated from the cloud's size."""
 
 
 @dataclass

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import json
 import shutil
 from pathlib import Path
@@ -18,7 +19,13 @@ from test_language import SPARSE  # the tiny scan's sparse cloud: looser cluster
 from neoedit.cameras.rays import CameraTensors
 from neoedit.cli import main
 from neoedit.data import load_scene_data
-from neoedit.edit.language_update import pushed_out_of_footprint
+from neoedit.edit.language_update import (
+    LanguageEdit,
+    LanguageUpdateConfig,
+    edited_rays,
+    pushed_out_of_footprint,
+    update_language,
+)
 from neoedit.edit.relocate import Motion, MoveConfig, move
 from neoedit.errors import NeoError
 from neoedit.fields.composed import ComposedField, TransformedField, moved_field
@@ -263,6 +270,36 @@ def test_move_refuses_bad_motions(move_scene: Path, sim_root: Path, tmp_path: Pa
     assert "say where to" in capsys.readouterr().err
     both = [*base, str(tmp_path / "o"), "--translate", "0.1", "0", "0", "--transform", "x"]
     assert main(both) == 2
+
+
+def test_edited_rays_match_the_cloud_density():
+    cfg = LanguageUpdateConfig(rays=24576, min_rays=2048)
+    # a cloud rendered from 1.8 % of the scan's pixels; a box seen through 185k pixels
+    assert edited_rays(0.018, 185_000, cfg) == 3330
+    assert edited_rays(0.018, 20_000, cfg) == 2048  # the floor
+    assert edited_rays(0.018, 1_000, cfg) == 1000  # no more than the box has
+    assert edited_rays(0.5, 185_000, cfg) == 24576  # the cap
+    assert edited_rays(0.0, 185_000, cfg) == 24576  # density unknown
+    off = LanguageUpdateConfig(rays=24576, density_factor=0.0)
+    assert edited_rays(0.018, 185_000, off) == 24576
+
+
+def test_language_update_keeps_the_cloud_as_dense_as_it_was(move_scene: Path, sim_root: Path):
+    """The query points re-rendered in an edited box are as dense as the cloud around them:
+    a removal replaces the object's points by about as many table points."""
+    parent = load_scene(move_scene)
+    box = OrientedBox.from_dict(_action(sim_root)["source_box"])
+    grown = box.grown(LanguageUpdateConfig().margin_m)
+    n_in = int(points_in_box(parent.surface_points_m, grown).sum())
+    sizes = {}
+    for factor in (1.0, 0.0):
+        child = copy.deepcopy(parent)
+        cfg = LanguageUpdateConfig(density_factor=factor, min_rays=1, steps=2)
+        update_language(parent, child, LanguageEdit(source=[box], targets=[]), cfg)
+        sizes[factor] = len(child.surface_points_m) - (len(parent.surface_points_m) - n_in)
+    assert parent.meta.language.cloud_rays_per_pixel > 0  # recorded when it was trained
+    assert 0.6 * n_in < sizes[1.0] < 1.5 * n_in
+    assert sizes[0.0] > 1.5 * sizes[1.0]  # every box pixel rendered: a denser patch of cloud
 
 
 def test_removal_updates_language_and_keeps_a_single_patch(

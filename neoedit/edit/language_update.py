@@ -38,7 +38,16 @@ from neoedit.scene import Scene
 @dataclass
 class LanguageUpdateConfig:
     rays: int = 24576
-    """Scan pixels through the edited boxes rendered to new surface points."""
+    """At most this many scan pixels through the edited boxes are rendered to new surface
+    points."""
+    density_factor: float = 1.0
+    """Pixels rendered per box pixel, relative to the rays per training pixel the parent's
+    query cloud was rendered at: at 1 the edited region's new points are as dense as the
+    cloud around them, so a query clusters a moved object as it did before the move.
+    (Rendering a fixed 24576 pixels made a mug's region 5.5x denser than the rest of its
+    cloud on NEO-Sim removal_1, and took 2 of the update's 4 s.) 0: always ``rays``."""
+    min_rays: int = 2048
+    """Fewest pixels rendered (when the box has that many), so a small box still gets points."""
     steps: int = 120
     """Distillation steps of the language field."""
     batch: int = 4096
@@ -111,10 +120,34 @@ def _teacher_targets(
     return lang, dino
 
 
+def edited_rays(rays_per_pixel: float, box_pixels: int, cfg: LanguageUpdateConfig) -> int:
+    """How many of the ``box_pixels`` scan pixels through the edited boxes to render: the
+    query cloud's ``rays_per_pixel`` times ``cfg.density_factor``, within
+    [``cfg.min_rays``, ``cfg.rays``]."""
+    n = cfg.rays
+    if cfg.density_factor > 0 and rays_per_pixel > 0:
+        wanted = int(np.ceil(box_pixels * rays_per_pixel * cfg.density_factor))
+        n = min(max(wanted, cfg.min_rays), n)
+    return min(n, box_pixels)
+
+
+def cloud_rays_per_pixel(scene: Scene, scan_pixels: int) -> float:
+    """The density the query cloud of ``scene`` was rendered at (rays per training pixel):
+    as recorded, else its points per pixel (of ``scan_pixels``), which counts only the rays
+    that hit a surface (79 % of them on NEO-Sim) and so errs on the sparse side."""
+    lang = scene.meta.language
+    if lang is not None and lang.cloud_rays_per_pixel > 0:
+        return lang.cloud_rays_per_pixel
+    cloud = scene.surface_points_m
+    return len(cloud) / scan_pixels if cloud is not None and scan_pixels > 0 else 0.0
+
+
 @torch.no_grad()
-def _edited_surface(child: Scene, boxes: list[OrientedBox], cfg: LanguageUpdateConfig):
+def _edited_surface(
+    parent: Scene, child: Scene, boxes: list[OrientedBox], cfg: LanguageUpdateConfig
+):
     """Surface points (K,3) of the edited field inside the boxes, from scan pixels whose ray
-    crosses them."""
+    crosses them (as many as :func:`edited_rays` says for the parent's query cloud)."""
     cameras, _, split = child.scan_cameras()
     cams = cameras.subset(split.get("train", np.arange(len(cameras))))
     pix = box_pixels(cams, boxes)
@@ -122,7 +155,9 @@ def _edited_surface(child: Scene, boxes: list[OrientedBox], cfg: LanguageUpdateC
     if len(pix) == 0:
         return torch.zeros((0, 3), device=device)
     rng = np.random.default_rng(cfg.seed)
-    pix = pix[rng.choice(len(pix), min(cfg.rays, len(pix)), replace=False)]
+    scan_pixels = int(np.sum(cams.width.astype(np.int64) * cams.height))
+    n = edited_rays(cloud_rays_per_pixel(parent, scan_pixels), len(pix), cfg)
+    pix = pix[rng.choice(len(pix), n, replace=False)]
     pix_t = torch.as_tensor(pix, device=device)
     rays = CameraTensors(cams, device).rays(pix_t[:, 0], pix_t[:, 1], pix_t[:, 2])
     field_, cut = child.renderable()
@@ -144,8 +179,8 @@ def update_language(
         return {}
     t0 = time.perf_counter()
     boxes = [b.grown(cfg.margin_m) for b in [*edit.source, *(b for b, _ in edit.targets)]]
-    new_points = _edited_surface(child, boxes, cfg)
     old = parent.surface_points_m
+    new_points = _edited_surface(parent, child, boxes, cfg)
     kept = old[~points_in_boxes(old, boxes)]
     query = composed_language_query(new_points, edit, cfg.ring_m)
     gen = torch.Generator().manual_seed(cfg.seed)

@@ -93,6 +93,10 @@ def backward(
     x: np.ndarray, grad_out: np.ndarray, resolutions: np.ndarray, table_shape
 ) -> np.ndarray:
     """Table gradient (L, T, F) from the output gradient laid out level-major (L, N, F)."""
-    grad_table = np.zeros(tuple(table_shape), dtype=np.float32)
+    # zeroed here in one sequential pass, not by np.zeros: calloc's lazily mapped pages would
+    # be first touched by the kernel's threads in random order, and those page faults cost
+    # more than the scatter itself (T = 2^18, 33k points: 25 ms against 6 ms + 4 ms)
+    grad_table = np.empty(tuple(table_shape), dtype=np.float32)
+    grad_table.fill(0.0)
     _backward(x, grad_out, resolutions, grad_table)
     return grad_table

@@ -210,6 +210,7 @@ def train_language(scene: Scene, data: SceneData, cfg: LanguageTrainConfig) -> S
     dino_d = dino_targets.to(device) if dino_targets is not None else None
     loss_ema = fit_language(lang, points_d, targets_d, dino_d, train_idx, cfg, generator)
     keep = torch.randperm(len(points), generator=generator)[: cfg.max_surface_points]
+    rays_per_pixel = cfg.rays / (len(frames) * data.height * data.width) * len(keep) / len(points)
     scene.language = lang
     scene.surface_points_m = points[keep].to(device)
     scene.meta.language = LanguageMeta(
@@ -221,5 +222,6 @@ def train_language(scene: Scene, data: SceneData, cfg: LanguageTrainConfig) -> S
         seconds=round(time.perf_counter() - t0, 2),
         loss=round(float(loss_ema or 0.0), 5),
         up=[round(float(c), 5) for c in estimate_up(data.cameras, points.numpy())],
+        cloud_rays_per_pixel=float(f"{rays_per_pixel:.6g}"),
     )
     return scene
