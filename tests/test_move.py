@@ -22,6 +22,7 @@ from neoedit.data import load_scene_data
 from neoedit.edit.language_update import (
     LanguageEdit,
     LanguageUpdateConfig,
+    cloud_density,
     edited_rays,
     pushed_out_of_footprint,
     update_language,
@@ -37,6 +38,7 @@ from neoedit.geometry.masks import project_box_mask
 from neoedit.geometry.transforms import make_transform
 from neoedit.language.localize import query_scene
 from neoedit.language.text import load_text_encoder
+from neoedit.language.training import cloud_rays_per_pixel
 from neoedit.scene import load_scene
 
 AABB = torch.tensor([[-0.5, -0.5, -0.2], [0.5, 0.5, 0.4]])
@@ -270,6 +272,10 @@ def test_move_refuses_bad_motions(move_scene: Path, sim_root: Path, tmp_path: Pa
     assert "say where to" in capsys.readouterr().err
     both = [*base, str(tmp_path / "o"), "--translate", "0.1", "0", "0", "--transform", "x"]
     assert main(both) == 2
+    bad = ["--translate", "0.1", "0", "0", "--edit.language.density-factor", "inf"]
+    assert main([*base, str(tmp_path / "o"), *bad]) == 2
+    assert "--edit.language.density-factor" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
 
 
 def test_edited_rays_match_the_cloud_density():
@@ -282,24 +288,61 @@ def test_edited_rays_match_the_cloud_density():
     assert edited_rays(0.0, 185_000, cfg) == 24576  # density unknown
     off = LanguageUpdateConfig(rays=24576, density_factor=0.0)
     assert edited_rays(0.018, 185_000, off) == 24576
+    # training: 131072 rays over 96 320x240 frames hit 104k times, 52k points kept
+    assert cloud_rays_per_pixel(131072, 96 * 76800, 104_000, 52_000) == pytest.approx(
+        131072 / (96 * 76800) / 2
+    )
 
 
-def test_language_update_keeps_the_cloud_as_dense_as_it_was(move_scene: Path, sim_root: Path):
-    """The query points re-rendered in an edited box are as dense as the cloud around them:
-    a removal replaces the object's points by about as many table points."""
+def _reloaded_without_density(scene_dir: Path, tmp: Path) -> Path:
+    """A copy of ``scene_dir`` as a scene trained before the cloud's density was recorded."""
+    old = tmp / "old"
+    shutil.copytree(scene_dir, old)
+    meta = json.loads((old / "scene.json").read_text())
+    del meta["language"]["cloud_rays_per_pixel"]
+    (old / "scene.json").write_text(json.dumps(meta))
+    return old
+
+
+def test_language_update_keeps_the_cloud_as_dense_as_it_was(
+    move_scene: Path, sim_root: Path, tmp_path: Path
+):
+    """Re-rendering an unedited copy through the object's box gives about as many query
+    points as the cloud held there, not as many as the box has pixels; a scene trained
+    before the density was recorded gets an estimate from its cloud's size."""
     parent = load_scene(move_scene)
+    assert parent.meta.language.cloud_rays_per_pixel > 0  # recorded when it was trained
+    old = load_scene(_reloaded_without_density(move_scene, tmp_path))
+    assert old.meta.language.cloud_rays_per_pixel == 0.0
+    cams, _, split = parent.scan_cameras()
+    train = cams.subset(split["train"])
+    pixels = int(np.sum(train.width * train.height))
+    estimate = cloud_density(old, pixels)
+    assert estimate == pytest.approx(len(old.surface_points_m) / pixels)
+    assert estimate < parent.meta.language.cloud_rays_per_pixel  # only the rays that hit
     box = OrientedBox.from_dict(_action(sim_root)["source_box"])
     grown = box.grown(LanguageUpdateConfig().margin_m)
     n_in = int(points_in_box(parent.surface_points_m, grown).sum())
     sizes = {}
-    for factor in (1.0, 0.0):
-        child = copy.deepcopy(parent)
+    for name, scene, factor in (("recorded", parent, 1.0), ("estimated", old, 1.0),
+                                ("every pixel", parent, 0.0)):  # fmt: skip
+        child = copy.deepcopy(scene)
         cfg = LanguageUpdateConfig(density_factor=factor, min_rays=1, steps=2)
-        update_language(parent, child, LanguageEdit(source=[box], targets=[]), cfg)
-        sizes[factor] = len(child.surface_points_m) - (len(parent.surface_points_m) - n_in)
-    assert parent.meta.language.cloud_rays_per_pixel > 0  # recorded when it was trained
-    assert 0.6 * n_in < sizes[1.0] < 1.5 * n_in
-    assert sizes[0.0] > 1.5 * sizes[1.0]  # every box pixel rendered: a denser patch of cloud
+        update_language(scene, child, LanguageEdit(source=[box], targets=[]), cfg)
+        sizes[name] = len(child.surface_points_m) - (len(scene.surface_points_m) - n_in)
+    assert 0.6 * n_in < sizes["recorded"] < 1.5 * n_in
+    assert sizes["estimated"] < sizes["recorded"]
+    assert sizes["every pixel"] > 1.5 * sizes["recorded"]
+
+
+def test_a_scene_with_a_bad_cloud_density_is_refused(move_scene: Path, tmp_path: Path):
+    bad = tmp_path / "bad"
+    shutil.copytree(move_scene, bad)
+    meta = json.loads((bad / "scene.json").read_text())
+    meta["language"]["cloud_rays_per_pixel"] = float("inf")
+    (bad / "scene.json").write_text(json.dumps(meta))
+    with pytest.raises(NeoError, match="cloud_rays_per_pixel"):
+        load_scene(bad)
 
 
 def test_removal_updates_language_and_keeps_a_single_patch(

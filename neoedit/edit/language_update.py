@@ -18,6 +18,7 @@ field at the scan's camera poses (the original poses Omega of the paper).
 from __future__ import annotations
 
 import copy
+import math
 import time
 from dataclasses import dataclass
 
@@ -25,6 +26,7 @@ import numpy as np
 import torch
 
 from neoedit.cameras.rays import CameraTensors
+from neoedit.errors import NeoError
 from neoedit.fields.composed import region_owner
 from neoedit.fields.language import LanguageField
 from neoedit.fields.suppressed import SuppressedField
@@ -45,7 +47,8 @@ class LanguageUpdateConfig:
     query cloud was rendered at: at 1 the edited region's new points are as dense as the
     cloud around them, so a query clusters a moved object as it did before the move.
     (Rendering a fixed 24576 pixels made a mug's region 5.5x denser than the rest of its
-    cloud on NEO-Sim removal_1, and took 2 of the update's 4 s.) 0: always ``rays``."""
+    cloud on NEO-Sim removal_1, and took 2 of the update's 4 s.) 0: ``rays`` pixels (or all
+    the box's, if fewer)."""
     min_rays: int = 2048
     """Fewest pixels rendered (when the box has that many), so a small box still gets points."""
     steps: int = 120
@@ -62,6 +65,14 @@ class LanguageUpdateConfig:
     """The edited boxes are grown by this much when replacing query points."""
     min_accumulation: float = 0.5
     seed: int = 0
+
+    def check(self, where: str = "--edit.language") -> None:
+        """Refuse settings the update cannot run with (before any work starts)."""
+        if not (math.isfinite(self.density_factor) and self.density_factor >= 0):
+            raise NeoError(f"{where}.density-factor must be a finite number >= 0")
+        for name in ("rays", "min_rays", "steps", "batch"):
+            if getattr(self, name) < 1:
+                raise NeoError(f"{where}.{name.replace('_', '-')} must be at least 1")
 
 
 @dataclass
@@ -120,21 +131,23 @@ def _teacher_targets(
     return lang, dino
 
 
-def edited_rays(rays_per_pixel: float, box_pixels: int, cfg: LanguageUpdateConfig) -> int:
-    """How many of the ``box_pixels`` scan pixels through the edited boxes to render: the
-    query cloud's ``rays_per_pixel`` times ``cfg.density_factor``, within
-    [``cfg.min_rays``, ``cfg.rays``]."""
+def edited_rays(rays_per_pixel: float, n_box_pixels: int, cfg: LanguageUpdateConfig) -> int:
+    """How many of the ``n_box_pixels`` scan pixels through the edited boxes to render: the
+    query cloud's ``rays_per_pixel`` times ``cfg.density_factor``, at least ``cfg.min_rays``
+    and at most ``cfg.rays`` (``cfg.rays`` when the density is unknown, 0), and never more
+    than the box has."""
     n = cfg.rays
-    if cfg.density_factor > 0 and rays_per_pixel > 0:
-        wanted = int(np.ceil(box_pixels * rays_per_pixel * cfg.density_factor))
+    if cfg.density_factor > 0 and math.isfinite(rays_per_pixel) and rays_per_pixel > 0:
+        wanted = int(np.ceil(n_box_pixels * rays_per_pixel * cfg.density_factor))
         n = min(max(wanted, cfg.min_rays), n)
-    return min(n, box_pixels)
+    return min(n, n_box_pixels)
 
 
-def cloud_rays_per_pixel(scene: Scene, scan_pixels: int) -> float:
+def cloud_density(scene: Scene, scan_pixels: int) -> float:
     """The density the query cloud of ``scene`` was rendered at (rays per training pixel):
-    as recorded, else its points per pixel (of ``scan_pixels``), which counts only the rays
-    that hit a surface (79 % of them on NEO-Sim) and so errs on the sparse side."""
+    as recorded at training, else its points per pixel (of ``scan_pixels``), which counts
+    only the rays that hit a surface (79 % of them on NEO-Sim) and so errs on the sparse
+    side."""
     lang = scene.meta.language
     if lang is not None and lang.cloud_rays_per_pixel > 0:
         return lang.cloud_rays_per_pixel
@@ -156,7 +169,7 @@ def _edited_surface(
         return torch.zeros((0, 3), device=device)
     rng = np.random.default_rng(cfg.seed)
     scan_pixels = int(np.sum(cams.width.astype(np.int64) * cams.height))
-    n = edited_rays(cloud_rays_per_pixel(parent, scan_pixels), len(pix), cfg)
+    n = edited_rays(cloud_density(parent, scan_pixels), len(pix), cfg)
     pix = pix[rng.choice(len(pix), n, replace=False)]
     pix_t = torch.as_tensor(pix, device=device)
     rays = CameraTensors(cams, device).rays(pix_t[:, 0], pix_t[:, 1], pix_t[:, 2])

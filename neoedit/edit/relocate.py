@@ -172,6 +172,7 @@ def move(
         )
     check_motions(parent, motions)
     cfg.remove.refine.check("--edit.remove.refine")
+    cfg.language.check("--edit.language")
     t0 = time.perf_counter()
     sources = working_boxes(parent, [m.box for m in motions], cfg.remove)
     transforms = [np.asarray(m.transform, dtype=np.float64) for m in motions]

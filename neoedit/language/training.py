@@ -121,6 +121,13 @@ def sample_surface(
     return pos, v, u, points.cpu(), acc.cpu()
 
 
+def cloud_rays_per_pixel(n_rays: int, scan_pixels: int, hits: int, kept: int) -> float:
+    """The density a query cloud was rendered at: ``n_rays`` random pixels of ``scan_pixels``
+    gave ``hits`` surface points, of which ``kept`` were kept (a random subset): so many
+    rays per training pixel made the points that are in the cloud."""
+    return n_rays / scan_pixels * kept / hits
+
+
 def language_loss(
     lang: LanguageField,
     points: torch.Tensor,
@@ -210,7 +217,8 @@ def train_language(scene: Scene, data: SceneData, cfg: LanguageTrainConfig) -> S
     dino_d = dino_targets.to(device) if dino_targets is not None else None
     loss_ema = fit_language(lang, points_d, targets_d, dino_d, train_idx, cfg, generator)
     keep = torch.randperm(len(points), generator=generator)[: cfg.max_surface_points]
-    rays_per_pixel = cfg.rays / (len(frames) * data.height * data.width) * len(keep) / len(points)
+    pixels = len(frames) * data.height * data.width
+    rays_per_pixel = cloud_rays_per_pixel(cfg.rays, pixels, len(points), len(keep))
     scene.language = lang
     scene.surface_points_m = points[keep].to(device)
     scene.meta.language = LanguageMeta(

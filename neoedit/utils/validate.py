@@ -157,6 +157,12 @@ def check_scene_meta(meta: Any, path: Path) -> None:
         check_config(getattr(meta, name), f"{where}: {name}")
     if meta.language is not None:
         check_config(meta.language.field, f"{where}: language.field")
+        density = meta.language.cloud_rays_per_pixel
+        if not (_finite_number(density) and density >= 0):
+            raise NeoError(
+                f"{where}: language.cloud_rays_per_pixel must be a finite number >= 0, "
+                f"got {density}"
+            )
     check_box_dicts(meta.cut_boxes, f"{where}: cut_boxes")
     check_box_dicts(meta.suppress_boxes, f"{where}: suppress_boxes")
     for i, p in enumerate(meta.patches):
