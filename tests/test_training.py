@@ -327,9 +327,9 @@ def _sparse_depth_trainer(sim_root: Path, tmp_path: Path, depth_rays: int, weigh
 
 def test_sparse_depth_is_sampled_and_shapes_the_geometry(sim_root: Path, tmp_path: Path):
     """Sparse depth: every batch ends with pixels that have depth (their true depth as the
-    target), and training on them brings the held-out depth closer to the truth than the
-    same depth met only by chance in random batches, or colour alone (random background
-    off, so the colour alone leaves the geometry ambiguous where the box is white)."""
+    target; the random rays carry none), and training on them alone brings the held-out
+    depth far closer to the truth than colour alone (random background off, so the colour
+    alone leaves the geometry ambiguous where the box is white)."""
     trainer, data, dense = _sparse_depth_trainer(sim_root, tmp_path, 128, 0.1)
     assert trainer.depth is None and trainer.sparse_depth is not None
     img, v, u, _, depth = trainer.batch()
@@ -351,7 +351,10 @@ def test_sparse_depth_is_sampled_and_shapes_the_geometry(sim_root: Path, tmp_pat
             mask = gt > 0
             err.append(np.abs(out["depth_z"].numpy()[mask] - gt[mask]))
         errors[name] = float(np.median(np.concatenate(err)))
-    # measured (make test): 6.4 mm with the sparse rays, 7.9 mm with the same depth met by
-    # chance in random batches (1 % of them), 8.5 cm from colour alone
-    assert errors["sparse"] < 0.9 * errors["by chance"], errors
+    # The random rays of the sparse trainer carry no depth (asserted above), so its depth
+    # comes from the sparse rays alone: they must pin the geometry that colour leaves
+    # ambiguous. Whether they beat the same depth met by chance in random batches depends
+    # on the machine at this tiny scale: 6.4 vs 7.9 mm on one 2-core Xeon, 5.8 vs 5.0 mm
+    # (6.5 vs 4.4 under pytest-xdist) on another, against 8.5 cm from colour alone.
     assert errors["sparse"] < 0.3 * errors["colour"], errors
+    assert errors["by chance"] < 0.3 * errors["colour"], errors

@@ -83,11 +83,19 @@ class RemovalLoss:
     originals: tuple[RayBundle, torch.Tensor] | None
     gen: torch.Generator
     train_gen: torch.Generator
+    patch: Field
+    """The part being trained (the newest patch of ``scene.field``, owning ``region``)."""
     outside: OutsideSegments | None = dataclasses.field(default=None, init=False)
     """The frozen parts of every M_v ray (:meth:`march_outside`); None: whole rays."""
 
     def __post_init__(self) -> None:
         self.device = self.pix.device
+        # Every point a step queries lies in the region: the span samples (between the first
+        # entry into a region box and the last exit: inside the box when the region is one
+        # box), L_reg's points (in the boxes) and L_keep's (under them, in the region). The
+        # newest patch answers everywhere in its region, so with one box the patch can be
+        # queried directly, skipping the composed field's ownership tests and scatters.
+        self.span_field: Field = self.patch if len(self.region) == 1 else self.scene.field
         n = self.cfg.span_samples
         self.span_cfg = dataclasses.replace(self.scene.meta.render, n_coarse_samples=n, n_samples=n)
         self.march_outside()
@@ -131,7 +139,9 @@ class RemovalLoss:
         cfg, scene = self.cfg, self.scene
         loss = torch.zeros((), device=self.device)
         reg_pts, pick_k = self.regulariser_points()
-        field = DensityRider(scene.field, reg_pts)
+        # whole rays (span_only off) leave the region: they need the composed field
+        net = self.span_field if self.outside is not None else scene.field
+        field = DensityRider(net, reg_pts)
         if len(self.pix):
             chosen = self.draw(cfg.virtual_rays, len(self.pix))
             pick = self.pix[chosen]
@@ -160,12 +170,12 @@ class RemovalLoss:
         if self.originals is not None:
             o_rays, o_rgb = self.originals
             pick_o = self.draw(cfg.original_rays, len(o_rgb))
-            out_o = render_rays(
-                field, scene.grid, o_rays[pick_o], scene.meta.render, scene.background,
+            out_o = render_rays(  # whole rays: through the composed field
+                scene.field, scene.grid, o_rays[pick_o], scene.meta.render, scene.background,
                 jitter=True, generator=self.train_gen,
             )  # fmt: skip
             loss = loss + torch.mean((out_o["rgb"] - o_rgb[pick_o]) ** 2)
-        sigma = field.sigma if field.sigma is not None else scene.field.density(reg_pts)
+        sigma = field.sigma if field.sigma is not None else net.density(reg_pts)
         n_reg = len(reg_pts) - (len(pick_k) if pick_k is not None else 0)
         loss = loss + cfg.lambda_reg * opacity_penalty(sigma[:n_reg])
         if pick_k is not None:

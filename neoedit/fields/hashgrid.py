@@ -125,9 +125,12 @@ class HashGridEncoding(nn.Module):
         if cfg.backend not in ("auto", "numba", "torch"):
             raise ValueError(f"unknown hash-grid backend {cfg.backend!r}")
         self.cfg = cfg
-        gen = torch.Generator().manual_seed(seed)
-        t = 2**cfg.log2_hashmap_size
-        table = (torch.rand(cfg.n_levels, t, cfg.features_per_level, generator=gen) * 2 - 1) * 1e-4
+        shape = (cfg.n_levels, 2**cfg.log2_hashmap_size, cfg.features_per_level)
+        if torch.empty(0).device.type == "meta":  # shapes only (a config check): no values
+            table = torch.empty(shape)
+        else:
+            gen = torch.Generator().manual_seed(seed)
+            table = (torch.rand(shape, generator=gen) * 2 - 1) * 1e-4
         self.table = nn.Parameter(table)
         self.register_buffer(
             "resolutions", torch.tensor(level_resolutions(cfg), dtype=torch.int64), persistent=False
