@@ -3,13 +3,15 @@
 density inside the box), L_keep (the support under it keeps the unedited density) and, in
 the ablation without mask conditioning, the original views through the box.
 
-Two things keep a step cheap:
+Three things keep a step cheap:
 
 * virtual rays are sampled on the part that crosses the patch's region only; what lies in
   front of and behind it is frozen and was marched once (:mod:`neoedit.rendering.span`);
 * the regulariser points ride along in the rendered samples' network query, so the patch's
   hash table gets one gradient per step instead of two (:class:`DensityRider`; the ablation
-  without mask conditioning renders a second batch, a second query).
+  without mask conditioning renders a second batch, a second query);
+* with a one-box region, every queried point lies in the patch's region, so the patch is
+  queried directly rather than through the composed field's ownership tests.
 """
 
 from __future__ import annotations
@@ -95,6 +97,9 @@ class RemovalLoss:
         # box), L_reg's points (in the boxes) and L_keep's (under them, in the region). The
         # newest patch answers everywhere in its region, so with one box the patch can be
         # queried directly, skipping the composed field's ownership tests and scatters.
+        parts = getattr(self.scene.field, "parts", None)
+        if not parts or parts[-1] is not self.patch:
+            raise ValueError("the removal's patch must be the newest part of the scene's field")
         self.span_field: Field = self.patch if len(self.region) == 1 else self.scene.field
         n = self.cfg.span_samples
         self.span_cfg = dataclasses.replace(self.scene.meta.render, n_coarse_samples=n, n_samples=n)

@@ -99,6 +99,7 @@ _POOL_LOCK = threading.Lock()
 
 
 def _references(pool: list[np.ndarray], i: int) -> int:
+    """References to ``pool[i]`` as counted from here (compared with :data:`_UNUSED`)."""
     return sys.getrefcount(pool[i])
 
 
@@ -121,8 +122,7 @@ def _free_buffer(shape: tuple[int, ...]) -> np.ndarray:
         pool = _GRAD_BUFFERS.setdefault(shape, [])
         for i in range(len(pool)):
             if _references(pool, i) <= _UNUSED:
-                buf = pool[i]
-                return buf
+                return pool[i]
         buf = np.empty(shape, dtype=np.float32)
         if len(pool) < _MAX_BUFFERS:
             pool.append(buf)
