@@ -257,7 +257,7 @@ def _patch_training(
         vcams=CameraTensors(virtual, device), window=window, pix=pix,
         targets=targets, target_depth=torch.zeros(targets.shape[:3], device=device),
         keep_pts=keep_pts, keep_alpha=keep_alpha, originals=originals, gen=gen,
-        train_gen=torch.Generator(device=device).manual_seed(cfg.seed), patch=patch,
+        train_gen=torch.Generator(device=device).manual_seed(cfg.seed),
     )  # fmt: skip
     return loss, optimizer, masks
 

@@ -85,8 +85,6 @@ class RemovalLoss:
     originals: tuple[RayBundle, torch.Tensor] | None
     gen: torch.Generator
     train_gen: torch.Generator
-    patch: Field
-    """The part being trained (the newest patch of ``scene.field``, owning ``region``)."""
     outside: OutsideSegments | None = dataclasses.field(default=None, init=False)
     """The frozen parts of every M_v ray (:meth:`march_outside`); None: whole rays."""
 
@@ -97,9 +95,7 @@ class RemovalLoss:
         # box), L_reg's points (in the boxes) and L_keep's (under them, in the region). The
         # newest patch answers everywhere in its region, so with one box the patch can be
         # queried directly, skipping the composed field's ownership tests and scatters.
-        parts = getattr(self.scene.field, "parts", None)
-        if not parts or parts[-1] is not self.patch:
-            raise ValueError("the removal's patch must be the newest part of the scene's field")
+        self.patch: Field = self.scene.patched().renderer_of(self.region)  # the one trained
         self.span_field: Field = self.patch if len(self.region) == 1 else self.scene.field
         n = self.cfg.span_samples
         self.span_cfg = dataclasses.replace(self.scene.meta.render, n_coarse_samples=n, n_samples=n)

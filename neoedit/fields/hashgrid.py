@@ -126,7 +126,7 @@ class HashGridEncoding(nn.Module):
             raise ValueError(f"unknown hash-grid backend {cfg.backend!r}")
         self.cfg = cfg
         shape = (cfg.n_levels, 2**cfg.log2_hashmap_size, cfg.features_per_level)
-        if torch.empty(0).device.type == "meta":  # shapes only (a config check): no values
+        if torch.get_default_device().type == "meta":  # shapes only (a config check): no values
             table = torch.empty(shape)
         else:
             gen = torch.Generator().manual_seed(seed)
