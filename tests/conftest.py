@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import os
 import string
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -22,6 +23,11 @@ from neoedit.utils.threads import configure_threads
 # messages are checked as printed: rich wraps them at the terminal width (80 columns when
 # there is no terminal), so a long temporary path would break a line inside a checked phrase
 os.environ["COLUMNS"] = "250"
+
+# derived simulator assets (a mug's convex parts) are cached outside the user's home
+os.environ.setdefault(
+    "NEOEDIT_CACHE", os.path.join(tempfile.gettempdir(), f"neoedit-test-cache-{os.getuid()}")
+)
 
 # under pytest-xdist (make test runs two workers on two cores) each worker keeps to one
 # thread, so the workers do not fight over the cores

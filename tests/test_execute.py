@@ -32,7 +32,11 @@ def _world(position=(-0.12, 0.0, 0.005)) -> SimWorld:
 
 def _top_down(world: SimWorld) -> dict:
     """A top-down grasp across the cube's x faces (what the planner returns for a cube)."""
-    box = world.object_box("cube")
+    return _top_down_of(world, "cube")
+
+
+def _top_down_of(world: SimWorld, name: str) -> dict:
+    box = world.object_box(name)
     rot_box = box.rotation
     closing, approach = rot_box[:, 0], np.array([0.0, 0.0, -1.0])
     finger = np.cross(approach, closing)
@@ -153,7 +157,7 @@ def test_sim_execute_runs_the_first_grasp_the_arm_reaches(tmp_path, capsys):
     simulate_scene(dataclasses.replace(spec, scan=TINY_SCAN), tmp_path / "scene")
     far = {**good, "position_m": [0.75, 0.3, 0.02]}  # 1.4 m from the Panda's base
     order = reachable_first(tmp_path / "scene", 1, [far, good], ExecuteConfig())
-    assert [i for i, _, _ in order] == [1, 0] and order[1][1] > 0.1
+    assert [r.grasp for r in order] == [1, 0] and order[1].error_m > 0.1
     (tmp_path / "grasps.json").write_text(json.dumps([far, good]))
     args = ["sim", "execute", str(tmp_path / "scene"), "--action", "1"]
     args += ["--grasp", str(tmp_path / "grasps.json"), "--out", str(tmp_path / "run")]
@@ -161,3 +165,37 @@ def test_sim_execute_runs_the_first_grasp_the_arm_reaches(tmp_path, capsys):
     assert "executing grasp 2 of 2" in capsys.readouterr().out
     record = json.loads((tmp_path / "run" / "execution.json").read_text())
     assert record["success"] and record["placement_error"]["position_m"] < 0.01
+
+
+def test_the_place_stops_where_the_object_meets_its_support():
+    """A target 2 cm inside the table: the guarded descent stops when the cube touches the
+    table and lets go there, instead of pressing it into the table until the arm gives up."""
+    with _world() as world:
+        centre = np.asarray(world.object_box("cube").center_m)
+        transform = motion_about(centre, np.array([0.05, 0.1, -0.02]), 0.0)
+        ex = execute_move(world, "cube", _top_down(world), transform, ExecuteConfig())
+        assert ex.success, ex.cause
+        box = world.object_box("cube")
+        assert abs(box.center_m[2] - centre[2]) < 0.003  # resting on the table, upright
+        assert np.linalg.norm(np.subtract(box.center_m[:2], centre[:2] + [0.05, 0.1])) < 0.01
+
+
+def test_a_support_met_high_above_the_target_fails_the_place_instead_of_dropping():
+    """The target is where another cube stands: coming down, the held cube meets that
+    cube's top 5 cm above its target. The place stops there and says so; it does not let
+    go and call the drop a placement."""
+    spec = SceneSpec(
+        name="blocked",
+        objects=[
+            ObjectSpec("cube", "pybullet_data:cube_small.urdf", position_m=(-0.12, 0.0, 0.005)),
+            ObjectSpec("block", "pybullet_data:cube_small.urdf", position_m=(-0.05, 0.12, 0.005)),
+        ],
+        actions=[],
+    )
+    with SimWorld(spec) as world:
+        here = np.asarray(world.object_box("cube").center_m)
+        there = np.asarray(world.object_box("block").center_m)
+        transform = motion_about(here, there - here, 0.0)
+        ex = execute_move(world, "cube", _top_down(world), transform, ExecuteConfig())
+        assert not ex.success and ex.stage == "place", ex.cause
+        assert "met block" in ex.cause and "above its target" in ex.cause, ex.cause

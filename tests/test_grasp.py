@@ -90,6 +90,29 @@ def test_grasps_through_the_table_or_a_neighbour_are_rejected():
         assert abs(g.rotation[0, 0]) < 0.5  # no closing along x: a finger would hit the neighbour
 
 
+def test_grasps_that_leave_the_fingers_room_rank_first():
+    """A block 4 x 7.2 cm: across its 7.2 cm the open pads (8 cm at most) clear it by 4 mm a
+    side, across its 4 cm by the full 1.5 cm; the roomy grasps rank first, and the margin
+    each grasp leaves is reported."""
+    box = OrientedBox((0.0, 0.0, 0.03), (0.04, 0.072, 0.06), 0.0)
+    density = scene_fn(TABLE, cuboid((0.0, 0.0, 0.03), (0.04, 0.072, 0.06)))
+    grasps = plan_grasps(density, box, GraspConfig(), top_k=200)
+    tight = [g for g in grasps if g.width_m > 0.06]
+    assert tight, "the wide side is graspable too"
+    assert grasps[0].width_m < 0.05 and abs(grasps[0].margin_m - 0.015) < 1e-6
+    assert all(g.margin_m < 0.006 for g in tight)
+    assert max(g.score for g in tight) < grasps[0].score
+    record = grasps[0].to_dict()
+    assert abs(record["margin_m"] - (record["opening_m"] - record["width_m"]) / 2) < 2e-5
+    # the score is the documented mix, the margin counted as a share of 1.5 cm
+    cfg = GraspConfig()
+    for g in grasps:
+        margin = min(1.0, g.margin_m / cfg.gripper.open_margin_m)
+        vertical = np.cos(np.radians(g.approach_deg))
+        mix = 0.5 * g.quality + 0.3 * vertical + 0.2 * g.clearance + cfg.margin_weight * margin
+        assert abs(g.score - mix / (1 + cfg.margin_weight)) < 2e-3  # approach_deg is rounded
+
+
 def test_an_object_wider_than_the_gripper_has_no_grasp(tmp_path: Path, capsys):
     box = OrientedBox((0.0, 0.0, 0.03), (0.12, 0.12, 0.06), 0.0)
     density = scene_fn(TABLE, cuboid((0.0, 0.0, 0.03), (0.12, 0.12, 0.06)))
@@ -103,13 +126,15 @@ def test_neo_grasp_on_a_trained_scene(
     (tmp_path / "box.json").write_text(json.dumps(box["source_box"]))
     out, js = tmp_path / "g", tmp_path / "g.json"
     args = ["grasp", str(move_scene), "--box", str(tmp_path / "box.json"), "--out", str(out)]
-    # the tiny 64x48 scan's field is too noisy around the mug for a collision-free grasp:
-    # a clear message, exit status 1, nothing written
+    import neoedit.grasp.antipodal as antipodal
+
+    # no collision-free grasp: a clear message, exit status 1, nothing written
+    monkeypatch.setattr(antipodal, "plan_grasps", lambda *a, **k: [])
     assert main([*args, "--json", str(js)]) == 1
     assert "no collision-free grasp" in " ".join(capsys.readouterr().out.split())
     assert not out.exists() and not js.exists()
     # the command's output path, with the planner's grasps of an analytic cylinder
-    import neoedit.grasp.antipodal as antipodal
+    monkeypatch.undo()
 
     cylinder_grasps = plan_grasps(
         scene_fn(TABLE, cylinder((0.05, -0.14, 0.04), 0.025, 0.08)),

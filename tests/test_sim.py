@@ -175,3 +175,59 @@ def test_example_spec_is_valid():
 
     spec = load_scene_spec(Path(__file__).parent.parent / "examples" / "demo_scene.yaml")
     assert spec.setup.name == "panda_wood" and [a.type for a in spec.actions] == ["remove"]
+
+
+def test_a_concave_object_keeps_its_inside_open(tmp_path: Path, monkeypatch):
+    """pybullet_data's mug collides with a closed body (a lid on the mug); a ``concave``
+    object collides with the V-HACD parts of its visual mesh: a ray down the mug's middle
+    meets its bottom, not its rim; the parts fill the visual mesh's box, so the mug stands
+    where it stood."""
+    import pybullet as pb
+    import pybullet_data
+
+    from neoedit.sim.catalog import CATALOG
+    from neoedit.sim.collision import concave_urdf
+    from neoedit.sim.spec import SceneSpec
+    from neoedit.sim.world import SimWorld
+
+    monkeypatch.setenv("NEOEDIT_CACHE", str(tmp_path))
+    hit_z, n_parts, rest_z = {}, {}, {}
+    for concave in (False, True):
+        mug = dataclasses.replace(CATALOG["red mug"], position_m=(0.1, 0.0, 0.003), concave=concave)
+        with SimWorld(SceneSpec(name="mug", objects=[mug], actions=[])) as world:
+            box = world.object_box("red mug")
+            (x, y, z), top = box.center_m, box.center_m[2] + box.size_m[2] / 2
+            down = pb.rayTest([x, y, 0.3], [x, y, -0.1], physicsClientId=world.client)[0]
+            hit_z[concave], rest_z[concave] = down[3][2], z
+            parts = world.collision_parts_world("red mug")
+            n_parts[concave] = len(parts)
+            lo, hi = np.concatenate(parts).min(0), np.concatenate(parts).max(0)
+            assert abs(hi[2] - top) < 5e-4 and abs(lo[2] - (2 * z - top)) < 5e-4
+    assert n_parts[True] > n_parts[False]  # the model's own: a closed body + handle parts
+    assert hit_z[False] > top - 0.005  # the hull: the ray stops at the rim's height
+    assert hit_z[True] < 0.02  # the parts: it goes down to the mug's bottom
+    assert abs(rest_z[True] - rest_z[False]) < 1e-4  # fitted parts: it stands as it did
+    # cached: the same URDF again, and the decomposition is not recomputed
+    parts_file = next((tmp_path / "vhacd").glob("*.obj"))
+    stamp = parts_file.stat().st_mtime_ns
+    urdf = Path(pybullet_data.getDataPath()) / "objects" / "mug.urdf"
+    assert concave_urdf(urdf) == concave_urdf(urdf)
+    assert parts_file.stat().st_mtime_ns == stamp
+
+
+def test_a_concave_object_needs_a_visual_mesh(tmp_path: Path, monkeypatch):
+    from neoedit.sim.collision import concave_urdf
+
+    monkeypatch.setenv("NEOEDIT_CACHE", str(tmp_path / "cache"))
+    box = tmp_path / "box.urdf"
+    box.write_text(
+        '<robot name="b"><link name="l"><visual><geometry><box size="0.05 0.05 0.05"/>'
+        '</geometry></visual><collision><geometry><box size="0.05 0.05 0.05"/></geometry>'
+        "</collision></link></robot>"
+    )
+    with pytest.raises(SpecError, match="needs a link with a visual mesh"):
+        concave_urdf(box)
+    broken = tmp_path / "broken.urdf"
+    broken.write_text("<robot name='b'><link>")
+    with pytest.raises(SpecError, match="cannot read the URDF"):
+        concave_urdf(broken)

@@ -174,10 +174,11 @@ class SimExecuteCommand:
         cfg = ExecuteConfig()
         pick = 0
         if len(grasps) > 1:
-            pick, err, stage = reachable_first(self.scene, self.action, grasps, cfg)[0]
+            best = reachable_first(self.scene, self.action, grasps, cfg)[0]
+            pick = best.grasp
             console.print(
                 f"executing grasp {pick + 1} of {len(grasps)} (reach check: "
-                f"{err * 100:.1f} cm off at worst, at {stage or 'no stage'})"
+                f"{best.error_m * 100:.1f} cm off at worst, at {best.stage or 'no stage'})"
             )
         ex = execute_action(self.scene, self.action, grasps[pick], self.out, cfg, self.overwrite)
         if not ex.success:

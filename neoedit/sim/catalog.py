@@ -32,7 +32,7 @@ SETUPS: dict[str, SetupSpec] = {
 CATALOG: dict[str, ObjectSpec] = {
     o.name: o
     for o in [
-        ObjectSpec("red mug", "pybullet_data:objects/mug.urdf", scale=0.9),
+        ObjectSpec("red mug", "pybullet_data:objects/mug.urdf", scale=0.9, concave=True),
         ObjectSpec(
             "yellow rubber duck",
             "pybullet_data:duck_vhacd.urdf",

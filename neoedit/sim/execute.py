@@ -11,39 +11,18 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import pybullet as pb
 
 from neoedit.errors import NeoError
 from neoedit.grasp.gripper import GripperConfig, opening
+from neoedit.sim.arm import ExecuteConfig, Motion, PandaArm
 from neoedit.sim.spec import ActionSpec, SceneSpec
 from neoedit.sim.world import PHYSICS_HZ, SimWorld
 
-EE_LINK = "panda_grasptarget"
-
-
-@dataclass
-class ExecuteConfig:
-    pregrasp_m: float = 0.10
-    """The hand starts this far back along the approach."""
-    lift_m: float = 0.10
-    """Lift height after closing (and while carrying)."""
-    ee_offset_m: float = 0.008
-    """The hand's grasp target sits this far beyond the grasp centre along the approach
-    (the planner's centre is short of the fingertips)."""
-    segment_s: float = 1.0
-    """Duration of each straight motion."""
-    hold_s: float = 1.0
-    """Hold after lifting (the success check), then a short shake."""
-    grip_force_n: float = 60.0
-    reach_tolerance_m: float = 0.015
-    """An arm that ends farther than this from a waypoint could not reach it."""
-    coupled_fingers: bool = True
-    """The fingers move as one, mirrored about the hand's axis, as the Franka Hand's do (a
-    gear constraint); off: each finger is driven on its own, so the first to touch pushes
-    the object until the other meets it."""
+__all__ = ["ExecuteConfig", "Execution", "PandaArm", "execute_action", "execute_move"]
 
 
 @dataclass
@@ -59,148 +38,6 @@ class Execution:
     def to_dict(self) -> dict[str, Any]:
         t = None if self.transform is None else np.round(self.transform, 6).tolist()
         return {"success": self.success, "stage": self.stage, "cause": self.cause, "transform": t}
-
-
-class PandaArm:
-    """The Panda of a :class:`SimWorld` driven by position control and inverse kinematics."""
-
-    def __init__(self, world: SimWorld, cfg: ExecuteConfig):
-        self.world, self.cfg, self.c, self.robot = world, cfg, world.client, world.robot
-        names = {
-            pb.getJointInfo(self.robot, j, physicsClientId=self.c)[12].decode(): j
-            for j in range(pb.getNumJoints(self.robot, physicsClientId=self.c))
-        }
-        if EE_LINK not in names:
-            raise NeoError(
-                "the scene's robot has no parallel gripper (pybullet_data's KUKA iiwa model has "
-                "none): execution needs the Panda setup"
-            )
-        self.ee = names[EE_LINK]
-        self.fingers = [names["panda_leftfinger"], names["panda_rightfinger"]]
-        movable = [
-            j
-            for j in range(pb.getNumJoints(self.robot, physicsClientId=self.c))
-            if pb.getJointInfo(self.robot, j, physicsClientId=self.c)[2] != pb.JOINT_FIXED
-        ]
-        self.arm = [j for j in movable if j not in self.fingers]
-        info = [pb.getJointInfo(self.robot, j, physicsClientId=self.c) for j in self.arm]
-        self.limits = np.array([(i[8], i[9]) for i in info])
-        self.home = self.joints()
-        for f in self.fingers:
-            pb.changeDynamics(self.robot, f, lateralFriction=1.2, physicsClientId=self.c)
-
-    def couple_fingers(self) -> int:
-        """Mirror the fingers with a gear constraint; returns its id (remove it when done)."""
-        gear = pb.createConstraint(
-            self.robot, self.fingers[0], self.robot, self.fingers[1], pb.JOINT_GEAR,
-            [1, 0, 0], [0, 0, 0], [0, 0, 0], physicsClientId=self.c,
-        )  # fmt: skip
-        pb.changeConstraint(gear, gearRatio=-1, erp=0.1, maxForce=50, physicsClientId=self.c)
-        return gear
-
-    def joints(self) -> np.ndarray:
-        states = pb.getJointStates(self.robot, self.arm, physicsClientId=self.c)
-        return np.array([s[0] for s in states])
-
-    def ee_pose(self) -> tuple[np.ndarray, np.ndarray]:
-        s = pb.getLinkState(
-            self.robot, self.ee, computeForwardKinematics=True, physicsClientId=self.c
-        )
-        return np.array(s[4]), np.array(pb.getMatrixFromQuaternion(s[5])).reshape(3, 3)
-
-    def ik(self, pos: np.ndarray, rot: np.ndarray) -> np.ndarray:
-        """Joint angles that put the hand at a pose (from the current joints), within the
-        joints' limits."""
-        from neoedit.sim.world import _matrix_to_quaternion
-
-        q = pb.calculateInverseKinematics(
-            self.robot, self.ee, pos.tolist(), _matrix_to_quaternion(rot),
-            maxNumIterations=300, residualThreshold=1e-5, physicsClientId=self.c,
-        )  # fmt: skip
-        return np.clip(np.asarray(q[: len(self.arm)]), self.limits[:, 0], self.limits[:, 1])
-
-    def solve(self, pos: np.ndarray, rot: np.ndarray, passes: int = 3) -> np.ndarray:
-        """Joint angles for a hand pose: inverse kinematics from the current joints, refined
-        ``passes - 1`` times from its own (limit-clipped) solution, the refinement
-        :func:`reach_error` uses too. The arm is put back where it was, velocities included,
-        so a motion can solve its next waypoint without losing its state. (The check still
-        starts each stage from the last exact solution, a motion from the arm's real joints,
-        which lag under load, and through extra points every 4 cm: it stays a little
-        optimistic.)"""
-        states = pb.getJointStates(self.robot, self.arm, physicsClientId=self.c)
-        q = self.ik(pos, rot)
-        try:
-            for _ in range(passes - 1):
-                self.set_joints(q)
-                q = self.ik(pos, rot)
-        finally:
-            for j, st in zip(self.arm, states, strict=True):
-                pb.resetJointState(self.robot, j, st[0], st[1], physicsClientId=self.c)
-        return q
-
-    def set_joints(self, q: np.ndarray) -> None:
-        """Put the arm at ``q`` at once (no motion, no physics step)."""
-        for j, qj in zip(self.arm, q, strict=True):
-            pb.resetJointState(self.robot, j, qj, physicsClientId=self.c)
-
-    def fingers_to(self, opening_m: float, force: float = 40.0) -> None:
-        for f in self.fingers:
-            pb.setJointMotorControl2(
-                self.robot, f, pb.POSITION_CONTROL, targetPosition=opening_m / 2,
-                force=force, physicsClientId=self.c,
-            )  # fmt: skip
-
-    def move_to(self, pos: np.ndarray, rot: np.ndarray, seconds: float) -> tuple[float, list[int]]:
-        """Drive the hand to a pose through waypoints (every 4 cm / 15 degrees, inverse
-        kinematics from the last solution); (final position error, bodies other than the
-        robot touched on the way)."""
-        from scipy.spatial.transform import Rotation, Slerp
-
-        p0, r0 = self.ee_pose()
-        turn = float(
-            np.degrees((Rotation.from_matrix(r0).inv() * Rotation.from_matrix(rot)).magnitude())
-        )
-        n = int(max(1, np.ceil(np.linalg.norm(pos - p0) / 0.04), np.ceil(turn / 15.0)))
-        slerp = Slerp([0.0, 1.0], Rotation.from_matrix(np.stack([r0, rot])))
-        touched: set[int] = set()
-        for k in range(1, n + 1):
-            f = k / n
-            touched |= self._drive(
-                p0 + f * (pos - p0), slerp(f).as_matrix(), max(seconds / n, 0.25)
-            )
-        for _ in range(int(0.3 * PHYSICS_HZ)):  # let position control settle on the goal
-            pb.stepSimulation(physicsClientId=self.c)
-        return float(np.linalg.norm(self.ee_pose()[0] - pos)), sorted(touched)
-
-    def _drive(self, pos: np.ndarray, rot: np.ndarray, seconds: float) -> set[int]:
-        start, goal = self.joints(), self.solve(pos, rot)
-        steps = max(1, int(seconds * PHYSICS_HZ))
-        touched: set[int] = set()
-        for k in range(1, steps + 1):
-            q = start + (goal - start) * min(1.0, k / (0.8 * steps))
-            pb.setJointMotorControlArray(
-                self.robot, self.arm, pb.POSITION_CONTROL, targetPositions=q.tolist(),
-                forces=[200.0] * len(self.arm), physicsClientId=self.c,
-            )  # fmt: skip
-            pb.stepSimulation(physicsClientId=self.c)
-            for cp in pb.getContactPoints(bodyA=self.robot, physicsClientId=self.c):
-                touched.add(cp[2])
-        return touched
-
-    def holds(self, body: int) -> bool:
-        """Both fingers touch ``body``."""
-        return all(
-            pb.getContactPoints(self.robot, body, linkIndexA=f, physicsClientId=self.c)
-            for f in self.fingers
-        )
-
-    def reset_home(self) -> None:
-        self.set_joints(self.home)
-        pb.setJointMotorControlArray(
-            self.robot, self.arm, pb.POSITION_CONTROL, targetPositions=self.home.tolist(),
-            physicsClientId=self.c,
-        )  # fmt: skip
-        self.fingers_to(0.04)
 
 
 def check_grasp(grasp: dict[str, Any]) -> None:
@@ -302,69 +139,133 @@ def _pick_and_place(
     transform: np.ndarray,
     cfg: ExecuteConfig,
 ) -> Execution:
-    body = world.bodies[name]
-    others = {world.table} | {b for n, b in world.bodies.items() if n != name}
+    run = _Run(world, arm, name, cfg, Execution(False, "reach"))
     before = world.object_pose(name)
     pos, rot = _hand_for(arm, grasp, cfg)
     # the hand moves rigidly with the object while carrying, by the same world transform
     way = {stage: (p, r) for stage, p, r in _waypoints(pos, rot, transform, cfg)}
-    ex = Execution(False, "reach")
+    # as wide as the planner checked (a grasp written without it: the planner's default)
+    width = float(grasp.get("width_m", 0.06))
+    arm.fingers_to(float(grasp.get("opening_m", opening(GripperConfig(), width))))
+    if not run.step("reach", way, run.others | {run.body}) or not run.step(
+        "approach", way, run.others
+    ):
+        return run.ex
+    if not run.close() or not run.step("lift", way) or not run.hold_and_shake(way, before):
+        return run.ex
+    if not run.step("carry", way) or not run.place(way):
+        return run.ex
+    run.ex.stage = "release"
+    arm.fingers_to(0.08)
+    _wait(world, 0.4)
+    placed = world.object_pose(name)
+    if not run.step("retreat", way):
+        return run.ex
+    dragged = float(np.linalg.norm(world.object_pose(name)[:3, 3] - placed[:3, 3]))
+    if dragged > 0.01:
+        run.ex.cause = f"retreat: the hand dragged the object {dragged * 100:.1f} cm"
+        return run.ex
+    arm.reset_home()
+    world.settle()
+    run.ex.success, run.ex.stage = True, "done"
+    run.ex.transform = world.object_pose(name) @ np.linalg.inv(before)
+    return run.ex
 
-    def step(stage: str, avoid: set[int]) -> bool:
-        ex.stage = stage
-        err, touched = arm.move_to(*way[stage], cfg.segment_s)
-        if err > cfg.reach_tolerance_m:
+
+Waypoints = dict[str, tuple[np.ndarray, np.ndarray]]
+
+
+class _Run:
+    """The stages of one pick-and-place; each returns False with ``ex.cause`` set when the
+    stage fails."""
+
+    def __init__(
+        self, world: SimWorld, arm: PandaArm, name: str, cfg: ExecuteConfig, ex: Execution
+    ):
+        self.world, self.arm, self.cfg, self.ex, self.name = world, arm, cfg, ex, name
+        self.body = world.bodies[name]
+        self.others = {world.table} | {b for n, b in world.bodies.items() if n != name}
+
+    def step(
+        self, stage: str, way: Waypoints, avoid: frozenset[int] | set[int] = frozenset()
+    ) -> bool:
+        """Move the hand to the stage's pose; touching a body in ``avoid`` fails."""
+        self.ex.stage = stage
+        return self._check(stage, self.arm.move_to(*way[stage], self.cfg.segment_s), avoid)
+
+    def _check(self, stage: str, motion: Motion, avoid: frozenset[int] | set[int]) -> bool:
+        err, touched = motion.error_m, set(motion.touched)
+        if err > self.cfg.reach_tolerance_m:
             # stopped short against something (the object held is touched on purpose), or
             # out of the arm's reach
-            against = set(touched) - ({body} if stage in ("lift", "carry", "place") else set())
-            ex.cause = (
+            against = touched - ({self.body} if stage in ("lift", "carry", "place") else set())
+            self.ex.cause = (
                 f"{stage}: the hand stopped {err * 100:.1f} cm short of the pose, against "
-                f"{_names(world, against)}"
+                f"{_names(self.world, against)}"
                 if against
                 else f"{stage}: the arm cannot reach the pose ({err * 100:.1f} cm off)"
             )
             return False
-        hit = avoid.intersection(touched)
+        hit = set(avoid) & touched
         if hit:
-            ex.cause = f"{stage}: collision with {_names(world, hit)}"
+            self.ex.cause = f"{stage}: collision with {_names(self.world, hit)}"
             return False
         return True
 
-    # as wide as the planner checked (a grasp written without it: the planner's default)
-    width = float(grasp.get("width_m", 0.06))
-    arm.fingers_to(float(grasp.get("opening_m", opening(GripperConfig(), width))))
-    if not step("reach", others | {body}) or not step("approach", others):
-        return ex
-    ex.stage = "close"
-    arm.fingers_to(0.0, cfg.grip_force_n)
-    _wait(world, 0.5)
-    if not arm.holds(body):
-        ex.cause = "close: the fingers do not both touch the object"
-        return ex
-    if not step("lift", set()):
-        return ex
-    _wait(world, cfg.hold_s)
-    lifted = world.object_pose(name)[2, 3] - before[2, 3]
-    if not arm.holds(body) or lifted < 0.5 * cfg.lift_m:
-        ex.cause = f"lift: the object slipped (raised {lifted * 100:.1f} cm)"
-        return ex
-    if not step("carry", set()) or not step("place", set()):
-        return ex
-    ex.stage = "release"
-    arm.fingers_to(0.08)
-    _wait(world, 0.4)
-    placed = world.object_pose(name)
-    if not step("retreat", set()):
-        return ex
-    dragged = float(np.linalg.norm(world.object_pose(name)[:3, 3] - placed[:3, 3]))
-    if dragged > 0.01:
-        ex.cause = f"retreat: the hand dragged the object {dragged * 100:.1f} cm"
-        return ex
-    arm.reset_home()
-    world.settle()
-    ex.success, ex.stage = True, "done"
-    ex.transform = world.object_pose(name) @ np.linalg.inv(before)
-    return ex
+    def close(self) -> bool:
+        self.ex.stage = "close"
+        self.arm.fingers_to(0.0, self.cfg.grip_force_n)
+        _wait(self.world, 0.5)
+        if not self.arm.holds(self.body):
+            self.ex.cause = "close: the fingers do not both touch the object"
+            return False
+        return True
+
+    def hold_and_shake(self, way: Waypoints, before: np.ndarray) -> bool:
+        """Hold, shake, and check the object is still between the fingers and lifted."""
+        _wait(self.world, self.cfg.hold_s)
+        pos, rot = way["lift"]
+        for dx, dy in ((1, 0), (-1, 0), (0, 1), (0, -1), (0, 0)):
+            shift = self.cfg.shake_m * np.array([dx, dy, 0.0])
+            hit = self.others & set(self.arm.move_to(pos + shift, rot, 0.25).touched)
+            if hit:
+                self.ex.cause = f"lift: the shake hit {_names(self.world, hit)}"
+                return False
+        lifted = self.world.object_pose(self.name)[2, 3] - before[2, 3]
+        if not self.arm.holds(self.body) or lifted < 0.5 * self.cfg.lift_m:
+            self.ex.cause = (
+                f"lift: the object slipped (raised {lifted * 100:.1f} cm after the shake)"
+            )
+            return False
+        return True
+
+    def place(self, way: Waypoints) -> bool:
+        """Down towards the target pose until the object meets a support (a guarded move),
+        which must happen near the target: met higher up, the object would be dropped."""
+        self.ex.stage = "place"
+        goal, rot = way["place"]
+        motion = self.arm.move_to(
+            goal, rot, self.cfg.segment_s, self._supported, self.cfg.place_step_m
+        )
+        if not motion.stopped:
+            return self._check("place", motion, frozenset())
+        above = float(self.arm.ee_pose()[0][2] - goal[2])
+        if above > self.cfg.place_above_m:
+            touching = {cp[2] for cp in self._contacts()} - {self.arm.robot}
+            self.ex.cause = (
+                f"place: the object met {_names(self.world, touching)} {above * 100:.1f} cm "
+                "above its target"
+            )
+            return False
+        return True
+
+    def _contacts(self) -> tuple:
+        return pb.getContactPoints(bodyA=self.body, physicsClientId=self.world.client)
+
+    def _supported(self) -> bool:
+        """The held object rests on something besides the robot: a contact whose normal
+        points up into the object (a neighbour brushed from the side does not count)."""
+        return any(cp[2] != self.arm.robot and cp[7][2] > 0.5 for cp in self._contacts())
 
 
 def _wait(world: SimWorld, seconds: float) -> None:
@@ -401,21 +302,30 @@ def _scene_action(scene_dir: Path, action: int) -> tuple[SceneSpec, ActionSpec, 
     return spec, todo, transform
 
 
+class Reach(NamedTuple):
+    grasp: int
+    """The grasp's place in the list given."""
+    error_m: float
+    """The largest distance between a waypoint and where the arm puts the hand."""
+    stage: str
+    """The stage of that largest error."""
+
+
 def reachable_first(
     scene_dir: Path, action: int, grasps: list[dict[str, Any]], cfg: ExecuteConfig
-) -> list[tuple[int, float, str]]:
-    """The grasps as (index, reach error [m], worst stage), those whose every waypoint the
-    arm reaches within ``cfg.reach_tolerance_m`` first (:func:`reach_error`; the planner's
-    order is kept within each group). The planner knows the scene, not the robot: this is
-    where the robot's reach comes in."""
+) -> list[Reach]:
+    """The grasps, those whose every waypoint the arm reaches within
+    ``cfg.reach_tolerance_m`` first (:func:`reach_error`; the planner's order is kept within
+    each group). The planner knows the scene, not the robot: this is where the robot's
+    reach comes in."""
     spec, _, transform = _scene_action(scene_dir, action)
     for g in grasps:
         check_grasp(g)
     with SimWorld(spec) as world:
         for a in spec.actions[: action - 1]:
             world.apply(a)
-        errors = [(i, *reach_error(world, g, transform, cfg)) for i, g in enumerate(grasps)]
-    return sorted(errors, key=lambda e: (not e[1] <= cfg.reach_tolerance_m, e[0]))
+        out = [Reach(i, *reach_error(world, g, transform, cfg)) for i, g in enumerate(grasps)]
+    return sorted(out, key=lambda r: (not r.error_m <= cfg.reach_tolerance_m, r.grasp))
 
 
 def execute_action(

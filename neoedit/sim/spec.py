@@ -43,6 +43,10 @@ class ObjectSpec:
     """Uniform scale passed to PyBullet (``globalScaling``)."""
     rgba: tuple[float, float, float, float] | None = None
     """Override colour; None keeps the model's own colour/texture."""
+    concave: bool = False
+    """Collide with the convex parts of the visual mesh (V-HACD, computed once and cached)
+    instead of the convex hulls of the collision mesh's parts, PyBullet's default: a mug's
+    inside stays open."""
 
 
 @dataclass

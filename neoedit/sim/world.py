@@ -17,6 +17,7 @@ from scipy.spatial.transform import Rotation
 from neoedit.errors import SpecError
 from neoedit.geometry import OrientedBox, rot_z, yaw_of_rotation
 from neoedit.geometry.transforms import apply_transform, make_transform
+from neoedit.sim.collision import concave_urdf, obj_parts
 from neoedit.sim.markers import add_markers
 from neoedit.sim.spec import ActionSpec, ObjectSpec, SceneSpec
 
@@ -116,6 +117,8 @@ class SimWorld:
 
     def _load_object(self, obj: ObjectSpec, instance_id: int) -> None:
         path = resolve_asset(obj.urdf, self.spec_dir, self.objects_dir)
+        if obj.concave:
+            path = concave_urdf(path)
         rot = rot_z(obj.yaw_deg) @ _euler_deg_to_matrix(obj.rpy_deg)
         orn = _matrix_to_quaternion(rot)
         body = pb.loadURDF(
@@ -192,6 +195,25 @@ class SimWorld:
             visual = _pose_matrix(self.client, vs[5], vs[6])
             points.append(apply_transform(link @ visual, local))
         return np.concatenate(points)
+
+    def collision_parts_world(self, name: str) -> list[np.ndarray]:
+        """(N,3) world vertices of each convex part the physics collides with (a mesh's
+        convex hull, or each part of a ``concave`` object's decomposition)."""
+        body = self.bodies[name]
+        com = _pose_matrix(
+            self.client, *pb.getBasePositionAndOrientation(body, physicsClientId=self.client)
+        )
+        parts = []
+        for cs in pb.getCollisionShapeData(body, -1, physicsClientId=self.client):
+            geom, dims, mesh_file = cs[2], np.asarray(cs[3]), cs[4].decode()
+            if geom != pb.GEOM_MESH:  # a primitive: its visual vertices bound it
+                parts.append(self.object_vertices_world_for(body))
+                continue
+            if not mesh_file.endswith(".obj"):
+                raise SpecError(f"{name}: collision mesh {mesh_file} is not an .obj file")
+            local = _pose_matrix(self.client, cs[5], cs[6])
+            parts += [apply_transform(com @ local, p * dims) for p in obj_parts(mesh_file)]
+        return parts
 
     def object_box(self, name: str) -> OrientedBox:
         """Box of the object's visual geometry, aligned with the object's own heading.
