@@ -283,9 +283,8 @@ def main() -> None:
         width = max(r.shape[1] for r in rows)
         rows = [np.pad(r, ((0, 0), (0, width - r.shape[1]), (0, 0))) for r in rows]
         write_png(Path("benchmarks/figures/grasp_and_act.png"), np.concatenate(rows, axis=0))
-    results["held-out"] = heldout  # type: ignore[assignment]
-    (args.out / "results.json").write_text(json.dumps(results, indent=1, default=str))
-    results.pop("held-out")
+    record = {**results, "held-out": heldout}
+    (args.out / "results.json").write_text(json.dumps(record, indent=1, default=str))
     fair = [r for r in heldout if r["reachable"]]
     print(
         f"held-out (pick, shake, put back; objects with a reachable grasp): top-1 "

@@ -82,14 +82,14 @@ def convex_parts(mesh: Path) -> Path:
     """The ``.obj`` of ``mesh``'s V-HACD decomposition (computed once, then cached)."""
     if not mesh.is_file():
         raise SpecError(f"mesh not found: {mesh}")
-    vertices = obj_parts(mesh)
-    if not vertices:
-        raise SpecError(f"{mesh}: no vertices to decompose")
     settings = repr((FORMAT, sorted(VHACD.items()))).encode()
     key = hashlib.sha256(mesh.read_bytes() + settings).hexdigest()
     out = cache_dir() / "vhacd" / f"{mesh.stem}-{key[:16]}.obj"
     if out.is_file():
         return out
+    vertices = obj_parts(mesh)
+    if not vertices:
+        raise SpecError(f"{mesh}: no vertices to decompose")
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
     except OSError as e:

@@ -47,12 +47,7 @@ def resolve_asset(ref: str, spec_dir: Path | None, objects_dir: Path | None) -> 
 
 @functools.lru_cache(maxsize=64)
 def _obj_vertices(path: str) -> np.ndarray:
-    verts = [
-        line.split()[1:4]
-        for line in Path(path).read_text(errors="ignore").splitlines()
-        if line.startswith("v ")
-    ]
-    return np.asarray(verts, dtype=np.float64)
+    return np.concatenate(obj_parts(path))
 
 
 def _pose_matrix(client: int, pos: tuple, orn: tuple) -> np.ndarray:
