@@ -113,6 +113,13 @@ def main() -> None:
     parser.add_argument("--train-steps", type=int, default=500, help="pre / oracle budget")
     parser.add_argument("--views", type=int, default=6, help="held-out views evaluated")
     parser.add_argument("--view", type=int, default=0, help="held-out view of the figure")
+    parser.add_argument(
+        "--figure",
+        type=Path,
+        default=Path("benchmarks/figures/assembly.png"),
+        help="where the figure goes (default: the committed one; give a path under --out "
+        "for a run that should not replace it)",
+    )
     args = parser.parse_args()
     print("command: python " + " ".join(shlex.quote(a) for a in sys.argv))
     print(f"machine: {platform.machine()}, {platform.system()}, {time.strftime('%Y-%m-%d %H:%M')}")
@@ -154,7 +161,7 @@ def main() -> None:
     labels = ["initial"] + [f"NEO step {k}" for k in range(1, n)]
     labels += ["truth: pre"] + [f"truth: post_{k}" for k in range(1, n)]
     write_png(
-        Path("benchmarks/figures/assembly.png"),
+        args.figure,
         tile_images([*predicted, *figure["truth"][:n]], cols=n, labels=labels),
     )
     print(json.dumps(summary(results), indent=1))

@@ -16,6 +16,10 @@ other objects of those scenes, whose grasps were never looked at while the plann
 tuned): picked, held, shaken and put back down where they were. The same sampler on the
 simulator's geometry (the convex parts each object collides with + the table slab) is the
 upper bound row ("truth geometry").
+
+Its inputs come from bench_move.py (--methods neo) and bench_assembly.py (--methods neo);
+give those runs ``--figure`` paths under their ``--out`` so that they leave the committed
+figures of the full runs alone.
 """
 
 from __future__ import annotations

@@ -192,6 +192,13 @@ def main() -> None:
     parser.add_argument("--train-steps", type=int, default=500, help="pre / oracle budget")
     parser.add_argument("--tag", default="", help="suffix of results/strip files")
     parser.add_argument(
+        "--figure",
+        type=Path,
+        default=None,
+        help="where the strips go (default: benchmarks/figures/move_strips{TAG}.png, the "
+        "committed figure; give a path under --out for a run that should not replace it)",
+    )
+    parser.add_argument(
         "--reuse-removal-patch",
         action="store_true",
         help="NEO's moves keep the removal's patch as the source part (MoveConfig option)",
@@ -210,7 +217,8 @@ def main() -> None:
         res_file.write_text(json.dumps(results, indent=1))
     print(table(results, [*MAIN, *ABLATIONS]))
     if any(m in MAIN for m in args.methods):
-        write_png(Path(f"benchmarks/figures/move_strips{args.tag}.png"), np.concatenate(strips, 0))
+        figure = args.figure or Path(f"benchmarks/figures/move_strips{args.tag}.png")
+        write_png(figure, np.concatenate(strips, 0))
 
 
 if __name__ == "__main__":
