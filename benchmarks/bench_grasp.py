@@ -250,6 +250,13 @@ def main() -> None:
         default=Path("outputs/bench_assembly/neo_store"),
         help="bench_assembly.py's NEO scene store (step_0 .. step_4)",
     )
+    parser.add_argument(
+        "--figure",
+        type=Path,
+        default=Path("benchmarks/figures/grasp_and_act.png"),
+        help="where the figure goes (default: the committed one; a path under --out leaves "
+        "it alone)",
+    )
     args = parser.parse_args()
     if args.candidates < 1:
         parser.error("--candidates must be >= 1")
@@ -286,7 +293,7 @@ def main() -> None:
     if rows:  # one row per object: grasps tried | predicted | executed
         width = max(r.shape[1] for r in rows)
         rows = [np.pad(r, ((0, 0), (0, width - r.shape[1]), (0, 0))) for r in rows]
-        write_png(Path("benchmarks/figures/grasp_and_act.png"), np.concatenate(rows, axis=0))
+        write_png(args.figure, np.concatenate(rows, axis=0))
     record = {**results, "held-out": heldout}
     (args.out / "results.json").write_text(json.dumps(record, indent=1, default=str))
     fair = [r for r in heldout if r["reachable"]]
