@@ -129,7 +129,8 @@ CASES = [
     C("eval-json-over-folder", "eval {scene} --data {data} --json notes", 2, "not a previous JSON result", NOTES),
     C("eval-images-user-folder", "eval {scene} --data {data} --images notes --overwrite", 2, "not a neoedit output", NOTES),
     C("eval-images-in-scene", "eval {scene} --data {data} --images {scene}/img", 2, "inside the input"),
-    C("eval-json-replaces-result", "eval {scene} --data {data} --json m.json", 0, "psnr", write("m.json", {"old": 1}), ("m.json",)),
+    C("eval-json-replaces-result", "eval {scene} --data {data} --json m.json --overwrite", 0, "psnr", write("m.json", {"old": 1}), ("m.json",)),
+    C("eval-json-keeps-user-json", "eval {scene} --data {data} --json config.json", 2, "already exists", write("config.json", {"lr": 1})),
     C("eval-ok", "eval {scene} --data {data} --json m.json --images img", 0, "psnr", creates=("m.json", "img")),
     C("query-json-over-image", "query {scene} mug --json {ws}/notes.txt --views 0", 2, "not a previous JSON result", FILE),
     C("query-out-user-folder", "query {scene} mug --out notes", 2, "not a neoedit output", NOTES),
@@ -138,7 +139,7 @@ CASES = [
     C("sim-scene-over-user-folder", "sim scene spec.yaml --out notes --overwrite", 2, "not a neoedit output", chain(SPEC, NOTES)),
     C("sim-scene-over-scene", "sim scene spec.yaml --out {scene} --overwrite", 2, "a neoedit scene", SPEC),
     C("sim-benchmark-over-file", "sim benchmark --profile small --only removal_1 --out notes.txt", 2, "not a folder", FILE),
-    C("sim-benchmark-scene-over-folder", "sim benchmark --profile small --only removal_1 --out {ws} --overwrite", 2, "not a neoedit output", write("removal_1/x.txt", "mine")),
+    C("sim-benchmark-scene-over-folder", "sim benchmark --profile small --only removal_1 --out {ws} --overwrite", 2, "holds no earlier", write("removal_1/x.txt", "mine")),
     C("sim-benchmark-negative-seed", "sim benchmark --profile small --seed -1 --out b", 2, "--seed"),
     # 2. intrinsics and poses
     C("info-negative-focal", "info {data}", 2, "focal length 'fl_x' must be positive", set_frame(fl_x=-46.1)),

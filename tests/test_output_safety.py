@@ -168,10 +168,89 @@ def test_a_running_writer_is_left_alone(tmp_path):
 def test_json_is_replaced_only_when_it_was_json(tmp_path):
     result = tmp_path / "m.json"
     atomic_write_json(result, {"psnr": 1})
-    io.check_writable_output(result, [], "json", overwrite=True)  # an earlier result: fine
+    io.check_writable_output(result, [], "json", overwrite=True)  # an earlier result: asked
     result.write_bytes(b"\x89PNG")
     with pytest.raises(io.NeoError, match="not a previous JSON result"):
         io.check_writable_output(result, [], "json", overwrite=True)
+
+
+def test_a_json_file_is_replaced_only_with_overwrite_and_never_a_scenes_own(tmp_path):
+    """Issue 42: `--json F` replaced a user's config.json, a store's store.json, a version's
+    tensors.json without being asked."""
+    user = tmp_path / "config.json"
+    user.write_text('{"lr": 0.01}')
+    with pytest.raises(io.NeoError, match="already exists"):
+        io.check_writable_output(user, [], "json", overwrite=False)
+    io.check_writable_output(user, [], "json", overwrite=True)  # asked for: a JSON result
+    for name in ("store.json", "tensors.json", "scene.json", "transforms.json"):
+        own = tmp_path / name.split(".")[0] / name  # each in its own folder
+        own.parent.mkdir()
+        own.write_text("{}")
+        with pytest.raises(io.NeoError, match="not a previous JSON result|is inside a scene"):
+            io.check_writable_output(own, [], "json", overwrite=True)
+    assert user.read_text() == '{"lr": 0.01}'
+
+
+def test_no_output_goes_inside_a_scene_or_a_store(tmp_path):
+    scene = tmp_path / "scene"
+    scene.mkdir()
+    (scene / "scene.json").write_text('{"format": "neoedit.scene/1"}')
+    store = tmp_path / "store"
+    (store / "step_1").mkdir(parents=True)
+    (store / "store.json").write_text("{}")
+    for out, kind in (
+        (scene / "m.json", "json"),
+        (scene / "renders", "render"),
+        (store / "step_1" / "sub", "scene"),
+        (store / "grasps", "grasp"),
+    ):
+        with pytest.raises(io.NeoError, match="is inside a scene"):
+            io.check_writable_output(out, [], kind, overwrite=True)
+        assert not out.exists()
+
+
+def test_out_of_memory_and_a_full_disk_are_one_line(tmp_path, capsys, monkeypatch):
+    from neoedit.cli.data import InfoCommand
+
+    for raised, expected in (
+        (
+            RuntimeError(
+                "[enforce fail at alloc_cpu.cpp:117] DefaultCPUAllocator: not enough "
+                "memory: you tried to allocate 99 bytes."
+            ),
+            "out of memory",
+        ),
+        (
+            RuntimeError("Error while serializing: IoError(No space left on device (os error 28))"),
+            "the disk is full",
+        ),
+    ):
+
+        def fail(self, raised=raised):
+            raise raised
+
+        monkeypatch.setattr(InfoCommand, "run", fail)
+        res = run_neo(["info", tmp_path], capsys)
+        assert res.code == 2 and res.traceback is None, res
+        assert expected in res.err and res.err.count("error:") == 1
+    monkeypatch.setattr(InfoCommand, "run", lambda self: 1 / 0)  # a bug stays a traceback
+    assert run_neo(["info", tmp_path], capsys).traceback is not None
+
+
+def test_sim_benchmark_writes_only_into_a_new_empty_or_earlier_suite_folder(tmp_path, capsys):
+    user = tmp_path / "mine"
+    user.mkdir()
+    (user / "notes.txt").write_text("keep")
+    argv = ["sim", "benchmark", "--profile", "small", "--only", "removal_1", "--out"]
+    res = run_neo([*argv, user], capsys)
+    assert res.code == 2 and "holds no earlier `neo sim benchmark` output" in res.err
+    assert [p.name for p in user.iterdir()] == ["notes.txt"]
+    earlier = tmp_path / "suite"  # written before outputs were marked: its suite.json says so
+    earlier.mkdir()
+    (earlier / "suite.json").write_text('{"profile": "small", "seed": 0, "scenes": []}')
+    from neoedit.cli.sim import _is_suite
+
+    assert _is_suite(earlier) and not _is_suite(user)
 
 
 def test_replacing_needs_a_neoedit_output_even_in_the_api(tmp_path):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import sys
 from collections.abc import Sequence
 from typing import Annotated, Union
@@ -22,7 +23,7 @@ from neoedit.cli.sim import SimBenchmarkCommand, SimExecuteCommand, SimSceneComm
 from neoedit.cli.view import ViewCommand
 from neoedit.errors import NeoError
 from neoedit.utils.threads import configure_threads, parse_threads
-from neoedit.utils.validate import check_device, user_message
+from neoedit.utils.validate import check_device, resource_message, user_message
 
 SimCommands = Annotated[
     Union[  # noqa: UP007 (tyro reads the Union)
@@ -59,7 +60,8 @@ Commands = Union[  # noqa: UP007
 
 THREADS_HELP = (
     "Every verb also takes --threads N (or NEO_THREADS=N): CPU threads of torch and numba "
-    "(default: the cores this process may use)."
+    "(default: the cores this process may use), and --verbose: also show the model "
+    "libraries' own loading bars and logs."
 )
 
 
@@ -83,20 +85,36 @@ def pop_threads(argv: list[str]) -> tuple[list[str], str | None]:
     return rest, value
 
 
+def quiet_third_party() -> None:
+    """Only neoedit's own progress and messages: the model libraries' download / loading
+    bars and info logs stay off (set before they are imported; --verbose keeps them)."""
+    os.environ.setdefault("HF_HUB_DISABLE_PROGRESS_BARS", "1")
+    os.environ.setdefault("TRANSFORMERS_VERBOSITY", "error")
+    os.environ.setdefault("DIFFUSERS_VERBOSITY", "error")
+    os.environ.setdefault("TOKENIZERS_PARALLELISM", "false")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``neo``; returns the exit status (0 ok, 2 bad input, 130 interrupted)."""
     args, threads = pop_threads(list(sys.argv[1:] if argv is None else argv))
+    if "--verbose" in args:
+        args = [a for a in args if a != "--verbose"]
+    else:
+        quiet_third_party()
     command = tyro.cli(Commands, prog="neo", args=args, description=THREADS_HELP)
     err = Console(stderr=True)
     try:
         configure_threads(None if threads is None else parse_threads(threads))
         check_device(getattr(command, "device", "auto"))
         command.run()
-    except NeoError as e:
+    except (NeoError, OSError) as e:  # OSError: a file that cannot be read or written
         err.print(f"[bold red]error:[/] {user_message(e)}", highlight=False)
         return 2
-    except OSError as e:  # a file that cannot be read or written (permissions, disk full, ...)
-        err.print(f"[bold red]error:[/] {user_message(e)}", highlight=False)
+    except Exception as e:
+        message = resource_message(e)  # out of memory, disk full: one line, no traceback
+        if message is None:
+            raise
+        err.print(f"[bold red]error:[/] {message}", highlight=False)
         return 2
     except SystemExit as e:  # a verb's own non-zero status (e.g. query: no match)
         return int(e.code or 0)

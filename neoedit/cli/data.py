@@ -2,15 +2,19 @@
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated
 
 import numpy as np
 import tyro
 from rich.console import Console
 
 from neoedit.data import load_scene_data
+from neoedit.data.downscale import DataConfig
 from neoedit.data.sparse_depth import is_sparse
+from neoedit.training.trainer import BOX_SOURCES, scene_box_and_source
 
 
 @dataclass
@@ -19,9 +23,12 @@ class InfoCommand:
 
     data: tyro.conf.Positional[Path]
     """Dataset folder (or its transforms.json)."""
+    data_cfg: Annotated[DataConfig, tyro.conf.OmitArgPrefixes] = dataclasses.field(
+        default_factory=DataConfig
+    )
 
     def run(self) -> None:
-        d = load_scene_data(self.data)
+        d = load_scene_data(self.data, self.data_cfg)
         c = Console()
         c.print(f"[bold]{d.root}[/]: {len(d)} frames of {d.width}x{d.height}")
         c.print("splits: " + ", ".join(f"{k}={len(v)}" for k, v in d.split.items()))
@@ -43,3 +50,15 @@ class InfoCommand:
             )
         for obj in d.objects:
             c.print(f"  {obj['name']}: box {obj['box']}")
+        transparent = d.alpha is not None and bool((d.alpha < 255).any())
+        c.print(f"alpha: {'yes (transparent background)' if transparent else 'no'}")
+        box, source = scene_box_and_source(d)
+        c.print(f"scene box: {np.round(box, 3).tolist()} from {BOX_SOURCES[source]}")
+        flags = "".join(
+            f" --{k.replace('_', '-')} {v}"
+            if not isinstance(v, bool)
+            else f" --{k.replace('_', '-')}"
+            for k, v in dataclasses.asdict(self.data_cfg).items()
+            if v and v != 1
+        )
+        c.print(f"train it: neo train {self.data}{flags} --out <scene folder>")

@@ -12,6 +12,7 @@ from typing import Annotated, Literal
 import tyro
 from rich.console import Console
 
+from neoedit.data.downscale import DataConfig
 from neoedit.errors import NeoError
 from neoedit.fields.radiance import RadianceFieldConfig
 from neoedit.language.training import LanguageTrainConfig
@@ -30,6 +31,9 @@ class TrainCommand:
     """Dataset folder."""
     out: Path
     """Scene directory to write (checkpointed atomically during training)."""
+    data_cfg: Annotated[DataConfig, tyro.conf.OmitArgPrefixes] = dataclasses.field(
+        default_factory=DataConfig
+    )
     train: Annotated[TrainConfig, tyro.conf.OmitArgPrefixes] = dataclasses.field(
         default_factory=TrainConfig
     )
@@ -60,6 +64,7 @@ class TrainCommand:
             self.device,
             self.resume,
             None if self.skip_language else self.language,
+            self.data_cfg,
         )
         last = scene.meta.history[-1] if scene.meta.history else {}
         console.print(
@@ -79,6 +84,7 @@ class TrainCommand:
         from neoedit.utils.validate import check_train_options
 
         language = None if self.skip_language else self.language
+        self.data_cfg.check()
         check_train_options(self.train, self.field, self.grid, self.render, language, self.resume)
         check_writable_output(
             self.out, [self.data], "scene", self.resume, "pass --resume to continue it"
@@ -144,6 +150,9 @@ class EvalCommand:
     """Scene directory."""
     data: Path
     """Ground-truth dataset (e.g. the post-manipulation scan)."""
+    data_cfg: Annotated[DataConfig, tyro.conf.OmitArgPrefixes] = dataclasses.field(
+        default_factory=DataConfig
+    )
     json: Path | None = None
     """Write the metrics here as JSON."""
     split: Literal["test", "train", "all"] = "test"
@@ -156,8 +165,8 @@ class EvalCommand:
     """Write rendered|ground-truth side-by-side images here (a new folder)."""
     device: str = "auto"
     overwrite: bool = False
-    """Replace the --images folder if it holds earlier evaluation images (never anything
-    else; a --json file is replaced when it holds JSON that is no dataset or scene file)."""
+    """Replace the --images folder if it holds earlier evaluation images, and an existing
+    --json file that holds JSON that is no dataset or scene file (never anything else)."""
 
     def run(self) -> None:
         from neoedit.data import load_scene_data
@@ -169,11 +178,11 @@ class EvalCommand:
 
         inputs = [self.scene, self.data, self.out_box, self.in_box]
         if self.json:
-            check_writable_output(self.json, inputs, "json", overwrite=True)
+            check_writable_output(self.json, inputs, "json", self.overwrite)
         if self.images:
             check_writable_output(self.images, inputs, "eval-images", self.overwrite)
         scene = load_scene(self.scene, resolve_device(self.device))
-        data = load_scene_data(self.data)
+        data = load_scene_data(self.data, self.data_cfg)
         out_boxes = load_boxes(self.out_box) if self.out_box else []
         in_boxes = load_boxes(self.in_box) if self.in_box else []
         with (

@@ -37,11 +37,12 @@ class GraspCommand:
     json: Path | None = None
     """Also write the grasps (a list, best first) to this file."""
     out: Path | None = None
-    """Folder for grasps.png (default: outputs/grasp/<scene name>)."""
+    """Folder for grasps.png (default: a new outputs/grasp/<scene name>-<prompt>[-N])."""
     grasp: GraspConfig = dataclasses.field(default_factory=GraspConfig)
     query: QueryConfig = dataclasses.field(default_factory=QueryConfig)
     overwrite: bool = False
-    """Replace OUT if it holds an earlier grasp picture."""
+    """Replace OUT if it holds an earlier grasp picture, and an existing --json file that
+    holds a previous JSON result (never a dataset or scene file)."""
     device: str = "auto"
 
     def run(self) -> None:
@@ -50,7 +51,7 @@ class GraspCommand:
         from neoedit.grasp.antipodal import plan_grasps, scene_density
         from neoedit.scene import load_scene
         from neoedit.utils.device import resolve_device
-        from neoedit.utils.io import atomic_write_json, check_writable_output
+        from neoedit.utils.io import atomic_write_json, check_writable_output, default_output
 
         if (self.prompt is None) == (self.box is None):
             raise NeoError('give either a prompt ("red mug") or --box BOX.json, not both')
@@ -66,10 +67,11 @@ class GraspCommand:
             raise NeoError("--grasp.surface.opacity must be in (0, 1)")
         if not self.grasp.collision_density > 0:
             raise NeoError("--grasp.collision-density must be > 0 [1/m]")
-        out = self.out or Path("outputs/grasp") / Path(self.scene).name
+        request = self.prompt if self.prompt is not None else Path(self.box or "box").stem
+        out = self.out or default_output("grasp", self.scene, request)
         check_writable_output(out, [self.scene], "grasp", self.overwrite)
         if self.json is not None:
-            check_writable_output(self.json, [self.scene, self.box], "json", overwrite=True)
+            check_writable_output(self.json, [self.scene, self.box], "json", self.overwrite)
         scene = load_scene(self.scene, resolve_device(self.device))
         box = find_boxes(scene, self.prompt, self.box, self.query, "grasp")[0]
         cfg = self.grasp

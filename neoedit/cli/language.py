@@ -13,7 +13,7 @@ from rich.console import Console
 
 from neoedit.errors import NeoError
 from neoedit.language.localize import QueryConfig
-from neoedit.utils.io import check_writable_output, mark_output
+from neoedit.utils.io import check_writable_output, default_output, mark_output
 from neoedit.utils.validate import user_message
 
 console = Console()
@@ -32,12 +32,15 @@ class QueryCommand:
     json: Path | None = None
     """Also write the box (one prompt) or the list of boxes (several) to this file."""
     out: Path | None = None
-    """Folder for query.png (default: outputs/query/<scene name>)."""
+    """Folder for query.png (default: a new outputs/query/<scene name>-<prompt>[-N])."""
     views: int = 3
     """Training views to draw (0 = no pictures)."""
     image_scale: float = 0.5
     """Resolution of the pictures relative to the training images."""
     query: QueryConfig = dataclasses.field(default_factory=QueryConfig)
+    overwrite: bool = False
+    """Replace an existing --json file (a previous JSON result, never a dataset or scene
+    file) and the pictures in an --out folder an earlier query wrote."""
     device: str = "auto"
 
     def run(self) -> None:
@@ -98,12 +101,14 @@ class QueryCommand:
         return path
 
     def _pictures_dir(self) -> Path:
-        return self.out or Path("outputs/query") / Path(self.scene).resolve().name
+        if self.out is None:  # derived once per call: the check and the writing agree
+            self.out = default_output("query", self.scene, self.prompt)
+        return self.out
 
     def _check_outputs(self) -> None:
-        """--json may replace an earlier JSON result, the pictures folder an earlier query's
-        picture; nothing else (and never inside the scene)."""
+        """With --overwrite, --json may replace an earlier JSON result and --out an earlier
+        query's pictures; nothing else, and never inside the scene."""
         if self.json is not None:
-            check_writable_output(self.json, [self.scene], "json", overwrite=True)
+            check_writable_output(self.json, [self.scene], "json", self.overwrite)
         if self.views:
-            check_writable_output(self._pictures_dir(), [self.scene], "query", overwrite=True)
+            check_writable_output(self._pictures_dir(), [self.scene], "query", self.overwrite)

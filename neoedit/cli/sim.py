@@ -15,13 +15,31 @@ from rich.table import Table
 from neoedit.errors import NeoError
 from neoedit.sim.spec import load_scene_spec
 from neoedit.sim.suite import benchmark_scenes
-from neoedit.utils.io import atomic_write_json, check_writable_output, output_kind
+from neoedit.utils.io import (
+    atomic_write_json,
+    check_writable_output,
+    mark_output,
+    output_kind,
+    probe_writable,
+)
 
 console = Console()
 
 
 def _dir_size_mb(path: Path) -> float:
     return sum(f.stat().st_size for f in path.rglob("*") if f.is_file()) / 1e6
+
+
+def _is_suite(folder: Path) -> bool:
+    """An earlier `neo sim benchmark` output: marked, or (written before the marker) with a
+    suite.json of its shape."""
+    if output_kind(folder) == "sim-suite":
+        return True
+    try:
+        suite = json.loads((folder / "suite.json").read_text())
+    except (OSError, ValueError):
+        return False
+    return isinstance(suite, dict) and {"profile", "seed", "scenes"} <= suite.keys()
 
 
 @dataclass
@@ -115,15 +133,24 @@ class SimBenchmarkCommand:
         atomic_write_json(
             self.out / "suite.json", {"profile": self.profile, "seed": self.seed, "scenes": rows}
         )
+        mark_output(self.out, "sim-suite")
         console.print(table)
         console.print(f"total {total_s:.1f} s, {_dir_size_mb(self.out):.1f} MB")
 
     def _check_out(self, scenes: list) -> None:
-        """OUT is a folder (or can be made); every scene folder already in it is a simulated
-        scene (kept, or replaced with --overwrite), never anything else."""
+        """OUT is new, empty or an earlier suite (its scenes are kept, or replaced with
+        --overwrite); never a folder of something else."""
         if self.out.exists() and not self.out.is_dir():
             raise NeoError(f"{self.out} exists and is not a folder")
-        check_writable_output(self.out / "suite.json", [], "json", overwrite=True)
+        if self.out.is_dir() and any(self.out.iterdir()):
+            if not _is_suite(self.out):
+                raise NeoError(
+                    f"{self.out} is not empty and holds no earlier `neo sim benchmark` output; "
+                    "choose a new or empty --out"
+                )
+            probe_writable(self.out)
+        else:
+            check_writable_output(self.out, [], "sim-suite")
         for spec in scenes:
             target = self.out / spec.name
             if target.exists() and output_kind(target) != "sim":

@@ -1,18 +1,40 @@
-"""Parser for nerfstudio ``transforms.json`` datasets.
+"""Parser for nerfstudio ``transforms.json`` datasets (and instant-ngp's, the same format).
 
-Supported keys: global or per-frame ``fl_x, fl_y, cx, cy, w, h``; per frame ``file_path``,
-``transform_matrix`` (camera-to-world, OpenGL), optional ``depth_file_path`` (uint16 PNG in
-``depth_unit_scale_factor`` metres, default 1e-3, or ``.npy`` in metres), ``mask_path``
-(nerfstudio loss mask, non-zero = use) and ``instance_path`` (neoedit: per-pixel instance
-id image, names in ``objects.json`` beside the transforms file). Splits come from
-``train_filenames`` / ``val_filenames`` / ``test_filenames``; without them every 8th frame
-is held out. neoedit extensions: ``background_color`` (RGB in [0,1]) and ``scene_aabb``
-(``[[xmin,ymin,zmin],[xmax,ymax,zmax]]`` in metres).
+Cameras: global or per-frame ``fl_x, fl_y, cx, cy, w, h`` (a frame's own value wins);
+``w``/``h`` default to the image's size. Without ``fl_x``/``fl_y``, instant-ngp's
+``camera_angle_x``/``camera_angle_y`` (field of view in radians) give them,
+``fl = 0.5 * w / tan(angle / 2)`` (one angle alone: square pixels), and ``cx``/``cy`` then
+default to the image centre. ``camera_model`` (global or per frame): PINHOLE and
+SIMPLE_PINHOLE (no distortion), OPENCV (the default; ``k1 k2 p1 p2``, optionally ``k3``),
+SIMPLE_RADIAL, RADIAL, OPENCV_FISHEYE (``k1 k2 k3 k4``; also instant-ngp's ``is_fisheye``).
+Frames with lens distortion are undistorted once at load to a pinhole camera of the same
+size (:mod:`neoedit.data.undistort`, cached in the user's cache folder, never in the
+dataset); the cameras returned are those pinholes, and the frames' depth, mask and
+instance images are remapped the same way (nearest neighbour). Pixels the undistortion
+cannot fill are left out of the loss (``loss_mask``).
+
+Per frame: ``file_path``, ``transform_matrix`` (camera-to-world, OpenGL), optional
+``depth_file_path`` (uint16 PNG in ``depth_unit_scale_factor`` metres, default 1e-3, or
+``.npy`` in metres), ``mask_path`` (nerfstudio loss mask, non-zero = use) and
+``instance_path`` (neoedit: per-pixel instance id image, names in ``objects.json`` beside the
+transforms file). Frames whose image is missing are listed in one error; ``skip_missing``
+drops them with a warning. Splits come from ``train_filenames`` / ``val_filenames`` /
+``test_filenames``; without them every 8th frame is held out.
+
+Scene box: neoedit's ``scene_aabb`` (``[[xmin,ymin,zmin],[xmax,ymax,zmax]]`` in metres);
+without it, instant-ngp's ``aabb_scale`` gives the box instant-ngp would use (the cube of
+side ``aabb_scale`` around (0.5, 0.5, 0.5) in its coordinates ``p * scale + offset``, scale
+0.33 and offset (0.5, 0.5, 0.5) unless given), in the poses' coordinates. Also
+``background_color`` (RGB in [0,1]).
 """
 
 from __future__ import annotations
 
 import json
+import math
+import warnings
+from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -20,8 +42,15 @@ import numpy as np
 
 from neoedit.cameras import Cameras
 from neoedit.cameras.cameras import validate_pose
-from neoedit.data.images import read_depth_m, read_label, read_rgba
+from neoedit.data.images import image_size, read_frame
 from neoedit.data.scene_data import SceneData
+from neoedit.data.undistort import (
+    DISTORTION_KEYS,
+    Lens,
+    Undistorter,
+    camera_model,
+    make_lens,
+)
 from neoedit.data.validate import (
     MAX_COORD_M,
     check_camera_model,
@@ -31,8 +60,16 @@ from neoedit.data.validate import (
 from neoedit.errors import DataError
 
 INTRINSIC_KEYS = ("fl_x", "fl_y", "cx", "cy", "w", "h")
-DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
 HOLDOUT_EVERY = 8
+NGP_SCALE = 0.33
+NGP_OFFSET = (0.5, 0.5, 0.5)
+NGP_MAX_AABB_SCALE = 128.0
+"""instant-ngp clamps ``aabb_scale`` to 2**(cascades - 1) = 128."""
+MISSING_LISTED = 10
+"""Missing frames named in the error (the rest are counted)."""
+
+Frames = list[tuple[int, dict[str, Any]]]
+"""(index in the file, frame) of the frames kept."""
 
 
 def read_json(path: Path) -> Any:
@@ -53,28 +90,54 @@ def _number(d: dict[str, Any], key: str, where: str) -> float:
     return float(value)
 
 
-def _intrinsics(meta: dict[str, Any], frame: dict[str, Any], where: str) -> list[float]:
-    values = []
-    for key in INTRINSIC_KEYS:
-        source = frame if key in frame else meta
-        if key not in source:
-            raise DataError(f"{where}: missing intrinsic '{key}' (neither in the frame nor global)")
-        values.append(_number(source, key, where))
-    for key in DISTORTION_KEYS:
-        source = frame if key in frame else meta
-        if key in source and abs(_number(source, key, where)) > 1e-12:
+def _value(meta: dict[str, Any], frame: dict[str, Any], key: str, where: str) -> float | None:
+    """The frame's number ``key``, else the global one, else None."""
+    source = frame if key in frame else meta
+    return _number(source, key, where) if key in source else None
+
+
+def _intrinsics(
+    meta: dict[str, Any],
+    frame: dict[str, Any],
+    where: str,
+    size: Callable[[], tuple[int, int]] | None = None,
+) -> list[float]:
+    """[fl_x, fl_y, cx, cy, w, h] of a frame; ``size`` gives the image's (w, h) if needed."""
+    fx, fy, cx, cy, w, h = (_value(meta, frame, key, where) for key in INTRINSIC_KEYS)
+    if (w is None or h is None) and size is not None:
+        iw, ih = size()
+        w, h = (float(iw) if w is None else w), (float(ih) if h is None else h)
+    if (fx is None or fy is None) and w is not None and h is not None:
+        ax = _angle(meta, frame, "camera_angle_x", where)
+        ay = _angle(meta, frame, "camera_angle_y", where)
+        if ax is not None or ay is not None:
+            fx = fx if fx is not None or ax is None else 0.5 * w / math.tan(0.5 * ax)
+            fy = fy if fy is not None or ay is None else 0.5 * h / math.tan(0.5 * ay)
+            fx, fy = (fy if fx is None else fx), (fx if fy is None else fy)
+            cx, cy = (0.5 * w if cx is None else cx), (0.5 * h if cy is None else cy)
+    values = [fx, fy, cx, cy, w, h]
+    for j in (4, 5, 0, 1, 2, 3):  # a missing size first: the focal lengths may need it
+        if values[j] is None:
             raise DataError(
-                f"{where}: lens distortion ('{key}') is not supported; undistort the images first"
+                f"{where}: missing intrinsic '{INTRINSIC_KEYS[j]}' (neither in the frame nor global)"
             )
-    check_intrinsics(values, where)
-    return values
+    check_intrinsics(values, where)  # type: ignore[arg-type]
+    return values  # type: ignore[return-value]
+
+
+def _angle(meta: dict[str, Any], frame: dict[str, Any], key: str, where: str) -> float | None:
+    angle = _value(meta, frame, key, where)
+    if angle is not None and not 0 < angle < math.pi:
+        raise DataError(f"{where}: '{key}' must be a field of view in (0, pi), got {angle:g}")
+    return angle
 
 
 def _split_indices(
-    meta: dict[str, Any], file_paths: list[str], path: Path
+    meta: dict[str, Any], file_paths: list[str], path: Path, dropped: frozenset[str] = frozenset()
 ) -> dict[str, np.ndarray]:
+    """Split name -> frame indices; names in ``dropped`` (skipped frames) are ignored."""
     n = len(file_paths)
-    norm = {Path(p).as_posix().removeprefix("./"): i for i, p in enumerate(file_paths)}
+    norm = {_norm(p): i for i, p in enumerate(file_paths)}
     split: dict[str, np.ndarray] = {}
     for name, key in (
         ("train", "train_filenames"),
@@ -87,7 +150,9 @@ def _split_indices(
             raise DataError(f"{path}: '{key}' must be a list of file paths")
         idx = []
         for f in meta[key]:
-            k = Path(f).as_posix().removeprefix("./")
+            k = _norm(f)
+            if k in dropped:
+                continue
             if k not in norm:
                 raise DataError(f"{path}: '{key}' lists {f!r}, which is not a frame's file_path")
             idx.append(norm[k])
@@ -103,6 +168,10 @@ def _split_indices(
     return split
 
 
+def _norm(file_path: str) -> str:
+    return Path(file_path).as_posix().removeprefix("./")
+
+
 def _read_meta(path: Path) -> tuple[Path, dict[str, Any]]:
     tf_path = Path(path) / "transforms.json" if Path(path).is_dir() else Path(path)
     meta = read_json(tf_path)
@@ -111,30 +180,86 @@ def _read_meta(path: Path) -> tuple[Path, dict[str, Any]]:
     return tf_path, meta
 
 
-def _parse_cameras(tf_path: Path, meta: dict[str, Any]) -> tuple[Cameras, list[str]]:
-    poses, intr, file_paths = [], [], []
+def _frames(tf_path: Path, meta: dict[str, Any]) -> Frames:
+    """Every frame, each checked to have a file path and a pose."""
     for i, frame in enumerate(meta["frames"]):
         where = f"{tf_path} frame {i}"
         if not isinstance(frame, dict) or "file_path" not in frame:
             raise DataError(f"{where}: missing 'file_path'")
         if "transform_matrix" not in frame:
             raise DataError(f"{where}: missing 'transform_matrix'")
-        _check_paths(frame, where)
-        check_camera_model(meta, frame, where)
+        for key in ("file_path", "depth_file_path", "mask_path", "instance_path"):
+            if key in frame and (not isinstance(frame[key], str) or not frame[key].strip()):
+                raise DataError(f"{where}: '{key}' must be a non-empty path, got {frame[key]!r}")
+    return list(enumerate(meta["frames"]))
+
+
+def _drop_missing(
+    tf_path: Path, frames: Frames, skip_missing: bool
+) -> tuple[Frames, frozenset[str]]:
+    """The frames whose image exists and the file paths of those dropped; without
+    ``skip_missing`` a missing image is one :class:`DataError` naming them all."""
+    missing = [
+        (i, f["file_path"]) for i, f in frames if not _is_file(tf_path.parent / f["file_path"])
+    ]
+    if not missing:
+        return frames, frozenset()
+    shown = ", ".join(f"{i} ({_short(p)})" for i, p in missing[:MISSING_LISTED])
+    more = f" and {len(missing) - MISSING_LISTED} more" if len(missing) > MISSING_LISTED else ""
+    what = f"{tf_path}: image not found for {len(missing)} of {len(frames)} frames: {shown}{more}"
+    if not skip_missing:
+        raise DataError(
+            f"{what}; fix their file_path, remove them, or pass --skip-missing to train without them"
+        )
+    if len(missing) == len(frames):
+        raise DataError(f"{what}; no frame is left")
+    warnings.warn(f"{what}; those frames are skipped", stacklevel=3)
+    gone = {i for i, _ in missing}
+    return [(i, f) for i, f in frames if i not in gone], frozenset(_norm(p) for _, p in missing)
+
+
+def _is_file(path: Path) -> bool:
+    try:
+        return path.is_file()
+    except OSError:
+        return True  # exists but unreadable: reading it gives the precise error
+
+
+def _short(text: str, limit: int = 48) -> str:
+    return text if len(text) <= limit else "..." + text[-(limit - 3) :]
+
+
+def _parse_frames(
+    tf_path: Path, meta: dict[str, Any], frames: Frames, with_images: bool
+) -> tuple[np.ndarray, list[Lens]]:
+    """(N,4,4) poses and the lenses of ``frames``. ``with_images``: the images exist (their
+    size fills in a missing w, h) and lens distortion is allowed; else pinholes only."""
+    poses, lenses = [], []
+    for i, frame in frames:
+        where = f"{tf_path} frame {i}"
+        model = "PINHOLE"
+        if with_images:
+            model = camera_model(meta, frame, where)
+        else:
+            check_camera_model(meta, frame, where)
         poses.append(validate_pose(frame["transform_matrix"], where))
         check_rotation(poses[-1], where)
-        intr.append(_intrinsics(meta, frame, where))
-        file_paths.append(frame["file_path"])
-    k = np.asarray(intr)
-    return Cameras(
-        np.stack(poses), k[:, 0], k[:, 1], k[:, 2], k[:, 3], k[:, 4], k[:, 5]
-    ), file_paths
+        size = partial(image_size, tf_path.parent / frame["file_path"]) if with_images else None
+        k = _intrinsics(meta, frame, where, size)
+        values = {key: _value(meta, frame, key, where) for key in DISTORTION_KEYS}
+        coeffs = {key: v for key, v in values.items() if v is not None and v != 0.0}
+        if coeffs and not with_images:
+            raise DataError(
+                f"{where}: lens distortion ('{next(iter(coeffs))}') is not supported for "
+                "cameras without images (cameras to render are pinholes)"
+            )
+        lenses.append(make_lens(model, k, coeffs, where))
+    return np.stack(poses), lenses
 
 
-def _check_paths(frame: dict[str, Any], where: str) -> None:
-    for key in ("file_path", "depth_file_path", "mask_path", "instance_path"):
-        if key in frame and (not isinstance(frame[key], str) or not frame[key].strip()):
-            raise DataError(f"{where}: '{key}' must be a non-empty path, got {frame[key]!r}")
+def _cameras(poses: np.ndarray, pinholes: list[tuple[float, ...]]) -> Cameras:
+    k = np.asarray(pinholes, dtype=np.float64)
+    return Cameras(poses, k[:, 0], k[:, 1], k[:, 2], k[:, 3], k[:, 4], k[:, 5])
 
 
 def _extras(
@@ -152,18 +277,56 @@ def _extras(
     )
     if unit <= 0:
         raise DataError(f"{tf_path}: 'depth_unit_scale_factor' must be positive, got {unit:g}")
+    box = _ngp_box(meta, tf_path)
     aabb = meta.get("scene_aabb")
-    if aabb is None:
-        return (float(bg[0]), float(bg[1]), float(bg[2])), unit, None
-    try:
-        box = np.asarray(aabb, dtype=np.float64).reshape(2, 3)
-    except (TypeError, ValueError):
-        box = np.full((2, 3), np.nan)
-    if not np.all(np.abs(box) <= MAX_COORD_M) or not np.all(box[1] > box[0]):
-        raise DataError(
-            f"{tf_path}: 'scene_aabb' must be [[xmin,ymin,zmin],[xmax,ymax,zmax]] with max > min, got {aabb!r}"
-        )
+    if aabb is not None:
+        try:
+            box = np.asarray(aabb, dtype=np.float64).reshape(2, 3)
+        except (TypeError, ValueError):
+            box = np.full((2, 3), np.nan)
+        if not _box_ok(box):
+            raise DataError(
+                f"{tf_path}: 'scene_aabb' must be [[xmin,ymin,zmin],[xmax,ymax,zmax]] with max > "
+                f"min, got {aabb!r}"
+            )
     return (float(bg[0]), float(bg[1]), float(bg[2])), unit, box
+
+
+def _box_ok(box: np.ndarray) -> bool:
+    return bool(np.all(np.abs(box) <= MAX_COORD_M) and np.all(box[1] > box[0]))
+
+
+def _ngp_box(meta: dict[str, Any], tf_path: Path) -> np.ndarray | None:
+    """instant-ngp's scene box in the poses' coordinates (None without ``aabb_scale``).
+    instant-ngp maps a pose's point p to ``p * scale + offset`` and bounds the scene by the
+    cube of side ``aabb_scale`` centred on (0.5, 0.5, 0.5) there."""
+    where = f"{tf_path}: instant-ngp"
+    scale = _number(meta, "scale", where) if "scale" in meta else NGP_SCALE
+    if scale <= 0:
+        raise DataError(f"{where} 'scale' must be positive, got {scale:g}")
+    offset = np.asarray(NGP_OFFSET, dtype=np.float64)
+    if "offset" in meta:
+        raw = meta["offset"]
+        items = raw if isinstance(raw, list) else [raw] * 3
+        if len(items) != 3 or not all(_finite(v) for v in items):
+            raise DataError(f"{where} 'offset' must be 3 finite numbers, got {raw!r}")
+        offset = np.asarray(items, dtype=np.float64)
+    if "aabb_scale" not in meta:
+        return None
+    aabb_scale = _number(meta, "aabb_scale", where)
+    if aabb_scale <= 0:
+        raise DataError(f"{where} 'aabb_scale' must be a positive number, got {aabb_scale:g}")
+    half = 0.5 * min(aabb_scale, NGP_MAX_AABB_SCALE)
+    box = np.stack([(0.5 - half - offset) / scale, (0.5 + half - offset) / scale])
+    if not _box_ok(box):
+        raise DataError(
+            f"{where} 'aabb_scale', 'scale' and 'offset' give a box beyond {MAX_COORD_M:g}"
+        )
+    return box
+
+
+def _finite(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
 
 def _unit_number(v: Any) -> bool:
@@ -171,76 +334,70 @@ def _unit_number(v: Any) -> bool:
 
 
 def load_cameras(path: Path) -> tuple[Cameras, list[str], dict[str, np.ndarray]]:
-    """Cameras, file paths and splits of a transforms.json, without reading any image."""
+    """Cameras, file paths and splits of a transforms.json, without reading any image
+    (pinhole cameras only: no lens distortion, ``w``/``h`` given)."""
     tf_path, meta = _read_meta(path)
-    cameras, file_paths = _parse_cameras(tf_path, meta)
+    frames = _frames(tf_path, meta)
+    poses, lenses = _parse_frames(tf_path, meta, frames, with_images=False)
+    file_paths = [f["file_path"] for _, f in frames]
+    cameras = _cameras(poses, [le.intrinsics for le in lenses])
     return cameras, file_paths, _split_indices(meta, file_paths, tf_path)
 
 
 def load_nerfstudio(
-    path: Path, background_rgb: tuple[float, float, float] | None = None
+    path: Path,
+    background_rgb: tuple[float, float, float] | None = None,
+    skip_missing: bool = False,
 ) -> SceneData:
-    """Load a nerfstudio dataset from a ``transforms.json`` file or the folder holding it."""
+    """Load a nerfstudio dataset from a ``transforms.json`` file or the folder holding it.
+    ``skip_missing``: drop the frames whose image file is missing (with a warning) instead of
+    refusing the dataset."""
     tf_path, meta = _read_meta(path)
     root = tf_path.parent
-    cameras, file_paths = _parse_cameras(tf_path, meta)
+    frames, dropped = _drop_missing(tf_path, _frames(tf_path, meta), skip_missing)
+    poses, lenses = _parse_frames(tf_path, meta, frames, with_images=True)
     meta_bg, unit, aabb = _extras(meta, tf_path)
     bg = background_rgb or meta_bg
-
-    images, alphas, depths, masks, labels = [], [], [], [], []
-    for i, frame in enumerate(meta["frames"]):
-        where = f"{tf_path} frame {i}"
-        img, alpha = read_rgba(root / frame["file_path"], bg)
-        w, h = int(cameras.width[i]), int(cameras.height[i])
-        if img.shape[:2] != (h, w):
-            raise DataError(f"{where}: image is {img.shape[1]}x{img.shape[0]} but w,h say {w}x{h}")
-        images.append(img)
-        alphas.append(alpha)
-        if "depth_file_path" in frame:
-            depths.append(_sized(read_depth_m(root / frame["depth_file_path"], unit), h, w, where))
-        if "mask_path" in frame:
-            masks.append(_sized(read_label(root / frame["mask_path"], "mask"), h, w, where) > 0)
-        if "instance_path" in frame:
-            labels.append(
-                _sized(read_label(root / frame["instance_path"], "instance image"), h, w, where)
-            )
+    undistorter = Undistorter(root)
+    loaded = [
+        read_frame(root, frame, lens, bg, unit, undistorter, f"{tf_path} frame {i}")
+        for (i, frame), lens in zip(frames, lenses, strict=True)
+    ]
+    images = [f.image for f in loaded]
     sizes = {im.shape for im in images}
     if len(sizes) != 1:
         raise DataError(f"{tf_path}: all images must share one size, found {sorted(sizes)}")
 
-    def stack_optional(items: list[np.ndarray], what: str) -> np.ndarray | None:
-        if not items:
-            return None
-        if len(items) != len(images):
+    def stack_optional(items: list[np.ndarray | None], what: str) -> np.ndarray | None:
+        given = [x for x in items if x is not None]
+        if given and len(given) != len(images):
             raise DataError(
-                f"{tf_path}: '{what}' is given for {len(items)} of {len(images)} frames"
+                f"{tf_path}: '{what}' is given for {len(given)} of {len(images)} frames"
             )
-        return np.stack(items)
+        return np.stack(given) if given else None
 
+    loss_mask = stack_optional([f.mask for f in loaded], "mask_path")
+    if any(f.valid is not None for f in loaded):  # leave out what the undistortion left empty
+        full = np.ones(images[0].shape[:2], bool)
+        valid = np.stack([full if f.valid is None else f.valid for f in loaded])
+        loss_mask = valid if loss_mask is None else loss_mask & valid
+    file_paths = [f["file_path"] for _, f in frames]
     names, objects = _instance_names(root)
     return SceneData(
         root=root,
         file_paths=file_paths,
         images=np.stack(images),
-        cameras=cameras,
-        split=_split_indices(meta, file_paths, tf_path),
-        depth_m=stack_optional(depths, "depth_file_path"),
-        alpha=_stack_alpha(alphas, images),
-        loss_mask=stack_optional(masks, "mask_path"),
-        instance_ids=stack_optional(labels, "instance_path"),
+        cameras=_cameras(poses, [f.pinhole for f in loaded]),
+        split=_split_indices(meta, file_paths, tf_path, dropped),
+        depth_m=stack_optional([f.depth_m for f in loaded], "depth_file_path"),
+        alpha=_stack_alpha([f.alpha for f in loaded], images),
+        loss_mask=loss_mask,
+        instance_ids=stack_optional([f.label for f in loaded], "instance_path"),
         instance_names=names,
         objects=objects,
         background_rgb=bg,
         scene_aabb_m=aabb,
     )
-
-
-def _sized(image: np.ndarray, h: int, w: int, where: str) -> np.ndarray:
-    if image.shape[:2] != (h, w):
-        raise DataError(
-            f"{where}: a depth, mask or instance image is {image.shape[1]}x{image.shape[0]}, the frame {w}x{h}"
-        )
-    return image
 
 
 def _stack_alpha(alphas: list[np.ndarray | None], images: list[np.ndarray]) -> np.ndarray | None:

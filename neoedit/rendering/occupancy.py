@@ -151,6 +151,28 @@ def refresh_grid(
     grid.refresh_mask()
 
 
+@torch.no_grad()
+def rebuild_grid(
+    grid: OccupancyGrid,
+    density_fn: Callable[[torch.Tensor], torch.Tensor],
+    seed: int = 0,
+    coarse_samples: int = 4,
+    fine_samples: int = 32,
+) -> None:
+    """Rebuild the whole grid from the field as it is now (the end of training): every cell
+    probed at ``coarse_samples`` points, which drops what the running maximum still
+    remembers of densities the field has since removed; then every cell occupied (dilated)
+    before or after that pass probed again at ``fine_samples`` points, so a thin surface the
+    coarse probes missed in its cell is found again. The fast march renders the undilated
+    cells: a surface cell lost here is a hole in every render (issue 39: 4 probes alone cost
+    0.7 dB held out on a Blender scene)."""
+    before = grid.occupied.clone() if int(grid.n_updates) > 0 else None
+    refresh_grid(grid, density_fn, samples=coarse_samples, seed=seed)
+    near = grid.occupied if before is None else grid.occupied | before
+    cells = torch.nonzero(near.reshape(-1))[:, 0]
+    refresh_grid(grid, density_fn, cells=cells, samples=fine_samples, seed=seed + 1)
+
+
 def cells_in_boxes(
     grid: OccupancyGrid, boxes: Sequence[OrientedBox], margin_cells: int = 1
 ) -> torch.Tensor:

@@ -34,6 +34,7 @@ MARKER = ".neoedit-output.json"
 """Marks a folder as a neoedit output (renders, evaluation images, query pictures)."""
 MARKER_FORMAT = "neoedit.output/1"
 PROTECTED_JSON = {"transforms.json", "scene.json", "objects.json", "suite.json", MARKER}
+PROTECTED_JSON |= {"store.json", "tensors.json"}
 PROTECTED_JSON |= {f"transforms_{s}.json" for s in ("train", "val", "test")}
 _TEMP_RE = re.compile(
     r"^\.(?P<name>.+)\.neoedit-(?P<pid>\d+)-[0-9a-f]{8}\.(?P<kind>tmp|partial|old|trash)$"
@@ -296,6 +297,22 @@ def probe_writable(folder: Path) -> None:
         raise NeoError(f"cannot write to {folder}: {e.strerror or e}") from None
 
 
+def _holder(folder: Path) -> str | None:
+    """'a scene' / 'a scene store' when ``folder`` is one, else None."""
+    if (folder / "store.json").is_file():
+        return "a scene store"
+    return "a scene" if output_kind(folder) == "scene" else None
+
+
+def _check_not_inside_scene(out: Path) -> None:
+    """Outputs never go into a scene, a store or a store's version (their files are the
+    scene's own; a stray file there is lost or confuses the next load)."""
+    for parent in out.resolve().parents:
+        what = _holder(parent)
+        if what is not None:
+            raise NeoError(f"{out} is inside {what} ({parent}); write outputs elsewhere")
+
+
 def _check_not_input(out: Path, inputs: Sequence[Path | None]) -> None:
     out_r = out.resolve()
     for inp in inputs:
@@ -324,11 +341,12 @@ def check_writable_output(
     ``out`` must not be, be inside or hold one of ``inputs``; an existing ``out`` must be a
     neoedit output of ``kind`` (or an empty folder; for kind 'json', a JSON file that is no
     dataset or scene metadata) and is replaced only with ``overwrite`` (``hint`` says
-    how to ask for that); the folder it goes to must be writable. Also removes what crashed runs left
-    there.
+    how to ask for that); ``out`` must not lie inside a scene or a store; the folder it goes
+    to must be writable. Also removes what crashed runs left there.
     """
     out = Path(out)
     _check_not_input(out, inputs)
+    _check_not_inside_scene(out)
     if out.exists() or out.is_symlink():
         refuse_foreign(out, kind)
         if not overwrite and not _is_empty_dir(out):
@@ -339,3 +357,16 @@ def check_writable_output(
     probe_writable(anchor)
     if anchor == out.parent:
         clean_stale_temporaries(anchor)
+
+
+def default_output(kind: str, scene: Path, request: str) -> Path:
+    """A new folder ``outputs/<kind>/<scene name>-<request>`` (the request made file-name
+    safe, e.g. the prompt), numbered ``-2``, ``-3`` ... when that name is taken, so that two
+    calls with default outputs never collide nor replace each other's results."""
+    slug = re.sub(r"[^A-Za-z0-9]+", "-", request).strip("-").lower()[:40] or "result"
+    base = Path("outputs") / kind / f"{Path(scene).resolve().name}-{slug}"
+    candidate, n = base, 1
+    while candidate.exists() or candidate.is_symlink():
+        n += 1
+        candidate = base.with_name(f"{base.name}-{n}")
+    return candidate

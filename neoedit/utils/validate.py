@@ -64,10 +64,29 @@ def user_message(error: Exception, limit: int = 2000) -> str:
     return escape(shorten(text, limit))
 
 
+def resource_message(error: Exception) -> str | None:
+    """The CLI's one line for running out of memory or disk (torch's allocator and
+    safetensors report these as RuntimeError / their own errors, not as MemoryError /
+    OSError), None for any other error."""
+    text = str(error)
+    if isinstance(error, MemoryError) or "DefaultCPUAllocator" in text or "out of memory" in text:
+        return user_message(
+            RuntimeError(
+                "out of memory: lower --rays-per-batch, the image size (--downscale) or the "
+                f"number of views ({shorten(text.splitlines()[0] if text else 'MemoryError', 200)})"
+            )
+        )
+    if "No space left on device" in text or "Disk quota exceeded" in text:
+        return user_message(RuntimeError(f"the disk is full: free space and run again ({text})"))
+    return None
+
+
 def check_device(name: str) -> None:
     """'auto', 'cpu', 'mps' or 'cuda[:N]' with that GPU present."""
     if not isinstance(name, str) or not _DEVICE_RE.match(name):
         raise NeoError(f"--device {shorten(name)!r} is not a device (use auto, cpu or cuda[:N])")
+    if name == "mps" and not (torch.backends.mps.is_available()):
+        raise NeoError("--device mps requested but this torch build has no Metal (MPS) support")
     if name.startswith("cuda"):
         if not torch.cuda.is_available():
             raise NeoError(f"--device {name} requested but CUDA is not available")
