@@ -274,6 +274,16 @@ def test_markup_in_a_message_is_printed_as_text(tmp_path, capsys):
     assert res.code == 2 and "[bold]x[/]" in res.err
 
 
+def test_markup_in_a_path_is_printed_as_text(sim_root, tmp_path, capsys):
+    """Issue 42: a folder named like rich markup raised MarkupError or lost its brackets."""
+    odd = tmp_path / "scan [x] [/]"
+    shutil.copytree(sim_root / "removal_1" / "pre", odd)
+    res = run_neo(["info", odd], capsys)
+    assert res.code == 0 and res.traceback is None, res
+    out = " ".join(res.out.split())
+    assert out.count("scan [x] [/]") == 2, out  # the header and the `neo train` line
+
+
 def test_input_scene_is_untouched_by_every_refusal_and_success(golden, tmp_path, capsys):
     """The input scene stays byte-identical through renders, evaluations and edits."""
     ws = make_workspace(tmp_path / "ws", *golden)

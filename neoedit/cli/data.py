@@ -10,6 +10,7 @@ from typing import Annotated
 import numpy as np
 import tyro
 from rich.console import Console
+from rich.markup import escape
 
 from neoedit.data import load_scene_data
 from neoedit.data.downscale import DataConfig
@@ -30,7 +31,7 @@ class InfoCommand:
     def run(self) -> None:
         d = load_scene_data(self.data, self.data_cfg)
         c = Console()
-        c.print(f"[bold]{d.root}[/]: {len(d)} frames of {d.width}x{d.height}")
+        c.print(f"[bold]{escape(str(d.root))}[/]: {len(d)} frames of {d.width}x{d.height}")
         c.print("splits: " + ", ".join(f"{k}={len(v)}" for k, v in d.split.items()))
         c.print(
             f"focal (px): {np.median(d.cameras.fx):.1f}; camera centres within "
@@ -49,7 +50,7 @@ class InfoCommand:
                 "instances: " + ", ".join(f"{i}={n}" for i, n in sorted(d.instance_names.items()))
             )
         for obj in d.objects:
-            c.print(f"  {obj['name']}: box {obj['box']}")
+            c.print(f"  {escape(str(obj['name']))}: box {obj['box']}")
         transparent = d.alpha is not None and bool((d.alpha < 255).any())
         c.print(f"alpha: {'yes (transparent background)' if transparent else 'no'}")
         box, source = scene_box_and_source(d)
@@ -61,4 +62,4 @@ class InfoCommand:
             for k, v in dataclasses.asdict(self.data_cfg).items()
             if v and v != 1
         )
-        c.print(f"train it: neo train {self.data}{flags} --out <scene folder>")
+        c.print(f"train it: neo train {escape(str(self.data))}{flags} --out <scene folder>")

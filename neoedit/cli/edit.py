@@ -11,6 +11,7 @@ from typing import Literal
 import numpy as np
 import tyro
 from rich.console import Console
+from rich.markup import escape
 
 from neoedit.edit.history import edit_lock
 from neoedit.edit.relocate import MoveConfig
@@ -100,7 +101,9 @@ def find_boxes(
     boxes = []
     for p in prompts:
         res = query_scene(scene, p, text, query)
-        console.print(f"{p!r}: box {json.dumps(res.box.to_dict())} (score {res.score:.3f})")
+        console.print(
+            f"{escape(repr(p))}: box {json.dumps(res.box.to_dict())} (score {res.score:.3f})"
+        )
         boxes.append(res.box)
     return boxes
 

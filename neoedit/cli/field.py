@@ -11,6 +11,7 @@ from typing import Annotated, Literal
 
 import tyro
 from rich.console import Console
+from rich.markup import escape
 
 from neoedit.data.downscale import DataConfig
 from neoedit.errors import NeoError
@@ -139,7 +140,7 @@ class RenderCommand:
             self.device,
             overwrite=self.overwrite,
         )
-        console.print(f"wrote {n} views to {self.out}")
+        console.print(f"wrote {n} views to {escape(str(self.out))}")
 
 
 @dataclass

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import tyro
 from rich.console import Console
+from rich.markup import escape
 
 from neoedit.errors import NeoError
 from neoedit.grasp import GraspConfig
@@ -116,4 +117,4 @@ class GraspCommand:
             tiles.append(draw_grasps(img, cameras, i, grasps, self.grasp.gripper))
         with atomic_directory(out, overwrite=self.overwrite, kind="grasp") as tmp:
             write_png(tmp / "grasps.png", tile_images(tiles, cols=len(tiles)))
-        console.print(f"wrote {out / 'grasps.png'}")
+        console.print(f"wrote {escape(str(out / 'grasps.png'))}")

@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 import tyro
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from neoedit.errors import NeoError
@@ -97,7 +98,7 @@ class RestoreCommand:
         name = store.find(self.version)
         before = store.current
         store.set_current(name)
-        console.print(f"{self.scene}: current version {before} -> {name}")
+        console.print(f"{escape(str(self.scene))}: current version {before} -> {name}")
 
 
 @dataclass
@@ -154,5 +155,7 @@ class DiffCommand:
             write_png(tmp / "diff.png", tile_images(tiles, cols=3, labels=labels))
             atomic_write_json(tmp / "diff.json", {"a": a, "b": b, "views": report})
         for r in report:
-            console.print(f"view {r['view']}: {a} vs {b}: PSNR {r['psnr_a_vs_b']} dB")
-        console.print(f"wrote {out / 'diff.png'}")
+            console.print(
+                f"view {r['view']}: {escape(a)} vs {escape(b)}: PSNR {r['psnr_a_vs_b']} dB"
+            )
+        console.print(f"wrote {escape(str(out / 'diff.png'))}")

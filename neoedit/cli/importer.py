@@ -10,6 +10,7 @@ from typing import Annotated, Union
 import numpy as np
 import tyro
 from rich.console import Console
+from rich.markup import escape
 
 from neoedit.data.capture import Capture
 from neoedit.data.importer import ImportConfig, ImportReport, import_capture
@@ -129,7 +130,7 @@ def print_report(report: ImportReport) -> None:
             "--orient.scale) for metric edits and grasps"
         )
     for note in o.notes:
-        c.print(f"[yellow]{note}[/]")
+        c.print(f"[yellow]{escape(str(note))}[/]")
     box = o.aabb_m.round(3).tolist()
     c.print(f"scene box (m): {box}")
     if report.sparse_depth:

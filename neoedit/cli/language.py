@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import tyro
 from rich.console import Console
+from rich.markup import escape
 
 from neoedit.errors import NeoError
 from neoedit.language.localize import QueryConfig
@@ -74,7 +75,7 @@ class QueryCommand:
         if self.views and results:
             path = self._pictures(scene, results, [r.prompt for r in results], text)
             if path is not None:
-                console.print(f"wrote {path}")
+                console.print(f"wrote {escape(str(path))}")
         if misses:
             for miss in misses:
                 console.print(f"[bold red]{user_message(miss)}[/]", highlight=False)
@@ -88,7 +89,9 @@ class QueryCommand:
         try:
             cameras, _, split = scene.scan_cameras()
         except NeoError as e:
-            console.print(f"[yellow]no pictures: the scene's dataset cannot be read ({e})[/]")
+            console.print(
+                f"[yellow]no pictures: the scene's dataset cannot be read ({escape(str(e))})[/]"
+            )
             return None
         train = split["train"]
         pick = train[

@@ -11,6 +11,7 @@ from typing import Literal
 import numpy as np
 import tyro
 from rich.console import Console
+from rich.markup import escape
 
 from neoedit.edit.plan import PlanConfig
 from neoedit.errors import NeoError
@@ -94,7 +95,9 @@ class PlanCommand:
                 report = functools.partial(_report, write_report, scene, child)
                 save_scene(out, child, extras=report)
                 rec = child.meta.edits[-1]
-                console.print(f"step {k}: {action.label} -> {out} in {rec['seconds']:.1f} s")
+                console.print(
+                    f"step {k}: {escape(str(action.label))} -> {escape(str(out))} in {rec['seconds']:.1f} s"
+                )
                 columns.append(render_versions([child], views))
                 names.append(f"step_{k}")
                 scene = child

@@ -10,6 +10,7 @@ from typing import Literal
 
 import tyro
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from neoedit.errors import NeoError
@@ -96,7 +97,7 @@ class SimBenchmarkCommand:
             scenes = [s for s in scenes if s.name in self.only]
         self._check_out(scenes)
         self.out.mkdir(parents=True, exist_ok=True)
-        table = Table(title=f"NEO-Sim {self.profile} (seed {self.seed}) -> {self.out}")
+        table = Table(title=f"NEO-Sim {self.profile} (seed {self.seed}) -> {escape(str(self.out))}")
         for col in ("scene", "kind", "setup", "scans", "objects", "seconds", "MB"):
             table.add_column(col)
         t0 = time.perf_counter()
@@ -209,6 +210,8 @@ class SimExecuteCommand:
             )
         ex = execute_action(self.scene, self.action, grasps[pick], self.out, cfg, self.overwrite)
         if not ex.success:
-            console.print(f"[bold red]execution failed at {ex.stage}: {ex.cause}[/]")
+            console.print(f"[bold red]execution failed at {ex.stage}: {escape(str(ex.cause))}[/]")
             raise SystemExit(1)
-        console.print(f"executed action {self.action}; outcome scanned into {self.out / 'scan'}")
+        console.print(
+            f"executed action {self.action}; outcome scanned into {escape(str(self.out / 'scan'))}"
+        )

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import tyro
 from rich.console import Console
+from rich.markup import escape
 
 from neoedit.edit.relocate import MoveConfig
 from neoedit.edit.remove import RemoveConfig
@@ -74,7 +75,9 @@ class ViewCommand:
             )
 
         def ready(app) -> None:
-            console.print(f"neo view: {self.scene} at [bold]{app.url}[/] (Ctrl-C to stop)")
+            console.print(
+                f"neo view: {escape(str(self.scene))} at [bold]{app.url}[/] (Ctrl-C to stop)"
+            )
 
         serve(self.scene, self.host, self.port, resolve_device(self.device), cfg, ready)
 

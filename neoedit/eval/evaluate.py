@@ -12,7 +12,7 @@ import numpy as np
 from neoedit.cameras.rays import CameraTensors
 from neoedit.data import SceneData
 from neoedit.data.sparse_depth import is_sparse
-from neoedit.eval.metrics import depth_rmse_m, psnr, reprojection_error, ssim
+from neoedit.eval.metrics import ObjectColours, depth_rmse_m, psnr, reprojection_error, ssim
 from neoedit.geometry import OrientedBox
 from neoedit.geometry.masks import masks_for_boxes
 from neoedit.scene import Scene
@@ -47,7 +47,8 @@ def evaluate(
 ) -> dict[str, Any]:
     """Metrics of ``scene`` rendered at the ``split`` cameras of ``data`` (ground truth);
     ``max_views`` evenly chosen of them when given. Depth RMSE needs dense depth (a
-    sensor's, NEO-Sim's): structure-from-motion points are no ground truth (NaN)."""
+    sensor's, NEO-Sim's): structure-from-motion points are no ground truth (NaN). With
+    instance labels, ``objects`` holds each object's mean colour, rendered and true."""
     indices = [int(i) for i in data.indices(split)]
     dense_depth = data.depth_m is not None and not is_sparse(data.depth_m)
     if max_views is not None and 0 < max_views < len(indices):
@@ -67,9 +68,12 @@ def evaluate(
         edited = list(out_boxes) + list(in_boxes)
         regions["rest"] = [~masks_for_boxes(data.cameras, i, edited) for i in indices]
     per_region: dict[str, dict[str, list[float]]] = {r: {m: [] for m in METRICS} for r in regions}
+    colours = ObjectColours(data.instance_names) if data.instance_ids is not None else None
     for k, i in enumerate(indices):
         gt = data.images[i].astype(np.float32) / 255.0
         pred = renders[k]["rgb"].clip(0.0, 1.0)
+        if colours is not None:
+            colours.add(pred, gt, data.instance_ids[i])
         nxt = (k + 1) % len(indices)
         for region, masks in regions.items():
             mask = masks[k]
@@ -102,6 +106,8 @@ def evaluate(
     result: dict[str, Any] = {
         region: {m: _nanmean(v) for m, v in values.items()} for region, values in per_region.items()
     }
+    if colours is not None:
+        result["objects"] = colours.result()
     result["n_views"] = len(indices)
     result["split"] = split
     result["render_seconds_per_view"] = round(seconds_per_view, 3)

@@ -73,3 +73,39 @@ def reprojection_error(
     )
     err = np.abs(rgb_i.astype(np.float32) - warped).mean(-1)
     return float(err[valid].mean()), int(valid.sum())
+
+
+class ObjectColours:
+    """Mean colour of each labelled object over several views, rendered vs ground truth
+    (issue 39: a field that renders a grey arm cream or a black patch dark red). Pixels on
+    an object's silhouette edge are left out (``erode_px``): there a few pixels of
+    misalignment would count as colour error."""
+
+    def __init__(self, names: dict[int, str], erode_px: int = 2):
+        self.names, self.erode_px = names, erode_px
+        self.sums: dict[int, np.ndarray] = {}
+
+    def add(self, pred: np.ndarray, gt: np.ndarray, labels: np.ndarray) -> None:
+        """One view: images (H,W,3) in [0,1] and its instance labels (H,W)."""
+        kernel = np.ones((2 * self.erode_px + 1,) * 2, np.uint8)
+        for obj in self.names:
+            inside = cv2.erode((labels == obj).astype(np.uint8), kernel) > 0
+            if not inside.any():
+                continue
+            s = self.sums.setdefault(obj, np.zeros(7))
+            s[:3] += pred[inside].sum(0)
+            s[3:6] += gt[inside].sum(0)
+            s[6] += inside.sum()
+
+    def result(self) -> dict[str, dict[str, float | list[float]]]:
+        """name -> render / truth mean colour (0-255) and the worst channel's error."""
+        out = {}
+        for obj, s in sorted(self.sums.items()):
+            render, truth = 255 * s[:3] / s[6], 255 * s[3:6] / s[6]
+            out[self.names[obj]] = {
+                "render": np.round(render, 1).tolist(),
+                "truth": np.round(truth, 1).tolist(),
+                "error": round(float(np.abs(render - truth).max()), 1),
+                "pixels": int(s[6]),
+            }
+        return out

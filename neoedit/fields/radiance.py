@@ -56,13 +56,22 @@ class Field(Protocol):
     ) -> tuple[torch.Tensor, torch.Tensor]: ...
 
 
+MAX_LOG_DENSITY = 15.0
+"""Densities are capped at exp(15) = 3.3e6 /m: opaque within a micrometre, and finite. Without
+the cap, the inside of objects, which no ray constrains, drifts with the shared hash-grid
+and MLP weights: a tiny scene trained 1,200 steps reached 1e37 /m and then inf, and its
+saved occupancy grid was refused as broken (issue 39)."""
+
+
 class TruncExp(torch.autograd.Function):
-    """exp with a gradient clamped for stability (Instant-NGP)."""
+    """exp with its value capped at exp(:data:`MAX_LOG_DENSITY`) and a gradient clamped for
+    stability (Instant-NGP). Above the cap the gradient still flows as if uncapped (clamped),
+    so a capped density the loss wants lower can come down."""
 
     @staticmethod
     def forward(ctx, x: torch.Tensor) -> torch.Tensor:
         ctx.save_for_backward(x)
-        return torch.exp(x)
+        return torch.exp(x.clamp(max=MAX_LOG_DENSITY))
 
     @staticmethod
     def backward(ctx, g: torch.Tensor) -> torch.Tensor:

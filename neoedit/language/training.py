@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 from rich.console import Console
+from rich.markup import escape
 
 from neoedit.cameras.rays import CameraTensors
 from neoedit.data import SceneData
@@ -204,7 +205,7 @@ def train_language(scene: Scene, data: SceneData, cfg: LanguageTrainConfig) -> S
         if cfg.teacher != "auto":
             raise
         # chosen for want of labels: a scene without a support plane just gets no language
-        Console(stderr=True).print(f"[yellow]{e}: the scene has no language field[/]")
+        Console(stderr=True).print(f"[yellow]{escape(str(e))}: the scene has no language field[/]")
         return scene
     dino_targets = dino.targets(pos, v, u)[0] if dino is not None else None
     field_cfg = LanguageFieldConfig(dim=teacher.dim, dino_dim=dino.dim if dino is not None else 0)
