@@ -64,7 +64,22 @@ def test_keys_change_only_with_what_a_unit_depends_on(monkeypatch):
     assert after["train/removal_1/post"] != keys["train/removal_1/post"]
     assert after["removal_1/oracle"] != keys["removal_1/oracle"]
     # editing code does not invalidate trainings; training code invalidates all but sims
-    assert units_mod.code_version("train") != units_mod.code_version("method")
+    for edited, train_changes in (("edit/relocate.py", False), ("training/trainer.py", True)):
+        with monkeypatch.context() as m:
+            read = Path.read_bytes
+            m.setattr(
+                Path,
+                "read_bytes",
+                lambda self, read=read, edited=edited: (
+                    read(self) + (b"# edited" if self.as_posix().endswith(edited) else b"")
+                ),
+            )
+            units_mod.code_version.cache_clear()  # hashes the sources once per process
+            changed = unit_keys(plan, "small", 0, {})
+        units_mod.code_version.cache_clear()
+        assert (changed["train/removal_1/pre"] != after["train/removal_1/pre"]) == train_changes
+        assert changed["sim/removal_1"] == after["sim/removal_1"] or train_changes
+        assert changed["removal_1/neo"] != after["removal_1/neo"]
 
 
 def test_repeated_names_plan_each_unit_once(tmp_path: Path):

@@ -233,12 +233,23 @@ def test_moved_version_is_self_contained_and_moves_again(
     assert p.meta.moves and p.meta.edits[-1]["method"] == "preview"
     assert main(["render", str(preview), "--views", "eval", "--out", str(tmp_path / "r")]) == 0
     assert len(list((tmp_path / "r" / "images").glob("*.png"))) >= 1
-    # the preview composes at render time: the target box now holds the object
+    # the preview composes at render time: the target box now holds the object, and the
+    # source box no longer does (the share of opaque points in each box above the table)
     moved_box = OrientedBox.from_dict(p.meta.moves[0]["target"])
+    source_box = OrientedBox.from_dict(_action(sim_root)["source_box"])
+    parent_field, _ = load_scene(scene_copy).renderable()
     field_, _ = p.renderable()
-    with torch.no_grad():
-        c = torch.tensor([moved_box.center_m], dtype=torch.float32)
-        assert float(field_.density(c)) >= 0.0
+
+    def filled(field, box: OrientedBox) -> float:
+        axes = [np.linspace(-0.9, 0.9, 10)] * 2 + [np.linspace(-0.4, 0.9, 10)]  # above the table
+        grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+        pts = (grid * box.half_extents) @ box.rotation.T + np.asarray(box.center_m)
+        with torch.no_grad():
+            sigma = field.density(torch.as_tensor(pts, dtype=torch.float32))
+        return float((sigma > 100.0).float().mean())
+
+    assert filled(field_, moved_box) > filled(parent_field, moved_box) + 0.05
+    assert filled(parent_field, source_box) > filled(field_, source_box) + 0.05
     # a full move of the moved object again, from the preview itself: the preview's
     # render-time move is settled into a patch first, then the move trains its own two
     (tmp_path / "moved_box.json").write_text(json.dumps(p.meta.moves[0]["target"]))

@@ -89,9 +89,22 @@ def test_resume_continues(sim_root: Path, tmp_path: Path):
     assert (out / "optimizer.safetensors").is_file()
     with pytest.raises(NeoError, match="--resume"):
         tiny_train(sim_root / "removal_1" / "pre", out, steps=30)
+    first = {k: v.clone() for k, v in load_scene(out).field.state_dict().items()}
     scene = tiny_train(sim_root / "removal_1" / "pre", out, steps=30, resume=True)
     assert scene.meta.step == 30
-    assert load_scene(out).meta.step == 30
+    resumed = load_scene(out)
+    assert resumed.meta.step == 30 and resumed.meta.history[-1]["step"] == 30
+    # the 10 new steps trained the saved weights further (not a fresh field, not a no-op)
+    now = resumed.field.state_dict()
+    changed = [k for k in first if not torch.equal(first[k], now[k])]
+    assert "encoding.table" in changed or any("encoding" in k for k in changed), changed
+    assert any("density_mlp" in k for k in changed), changed
+    fresh = tiny_train(sim_root / "removal_1" / "pre", tmp_path / "fresh", steps=10)
+    gap_resumed = (now["density_mlp.0.weight"] - first["density_mlp.0.weight"]).norm()
+    gap_fresh = (
+        fresh.field.state_dict()["density_mlp.0.weight"] - first["density_mlp.0.weight"]
+    ).norm()
+    assert gap_resumed < gap_fresh  # it continued from the checkpoint
 
 
 @pytest.mark.parametrize(
