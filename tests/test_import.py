@@ -148,6 +148,11 @@ def test_llff_reads_the_same_poses_as_colmap(tmp_path):
     np.testing.assert_allclose(llff.lenses[0].matrix(), colmap.lenses[0].matrix(), atol=1e-9)
     assert main(["import", "llff", str(src), "--out", str(tmp_path / "ds")]) == 0
     assert len(load_scene_data(tmp_path / "ds")) == N
+    # LLFF as published: no images/, only downscaled images_N/ folders: the largest is used
+    (src / "images").rename(src / "images_4")
+    (src / "images_8").mkdir()
+    (src / "images_x").mkdir()
+    assert read_llff(src).image_dir == src / "images_4"
 
 
 def _fold(src: Path, at: int) -> None:

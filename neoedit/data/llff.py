@@ -22,6 +22,20 @@ def _image_size(path: Path) -> tuple[int, int]:
     return int(image.shape[1]), int(image.shape[0])
 
 
+def _default_images(root: Path) -> Path:
+    """``images/``, else the largest of LLFF's downscaled ``images_N/`` folders (the poses'
+    focal length is scaled to the image size, so any of them pairs with the poses)."""
+    full = root / "images"
+    if full.is_dir():
+        return full
+    scaled = sorted(
+        (int(p.name[7:]), p)
+        for p in root.glob("images_*")
+        if p.is_dir() and p.name[7:].isdigit() and int(p.name[7:]) > 0
+    )
+    return scaled[0][1] if scaled else full
+
+
 def read_llff(src: Path, images: Path | None = None) -> Capture:
     """The capture described by ``src/poses_bounds.npy`` (or that file itself)."""
     src = Path(src)
@@ -36,7 +50,7 @@ def read_llff(src: Path, images: Path | None = None) -> Capture:
         raise DataError(f"{path}: expected an (N, 17) array with N >= 2, got {table.shape}")
     if not np.all(np.isfinite(table)):
         raise DataError(f"{path}: holds non-finite numbers")
-    image_dir = Path(images) if images is not None else path.parent / "images"
+    image_dir = Path(images) if images is not None else _default_images(path.parent)
     if not image_dir.is_dir():
         raise DataError(f"image folder not found: {image_dir} (name it with --images)")
     names = sorted(p.name for p in image_dir.iterdir() if p.suffix in IMAGE_SUFFIXES)
