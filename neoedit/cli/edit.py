@@ -178,6 +178,8 @@ class MoveCommand:
         t = np.asarray(self.translate if self.translate is not None else (0.0, 0.0, 0.0))
         if not np.isfinite(t).all() or not np.isfinite(self.yaw):
             raise NeoError("--translate and --yaw must be finite numbers")
+        if abs(self.yaw) > 360.0:
+            raise NeoError(f"--yaw is in degrees, within [-360, 360]; got {self.yaw:g}")
         return t, float(self.yaw)
 
 

@@ -21,6 +21,7 @@ over the scan's pixels, which holds the rest of the scene where it was.
 from __future__ import annotations
 
 import functools
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -29,6 +30,7 @@ import torch
 from neoedit.cameras import Cameras
 from neoedit.cameras.rays import CameraTensors, RayBundle
 from neoedit.edit.points import box_points
+from neoedit.errors import NeoError
 from neoedit.fields.background import Background
 from neoedit.fields.radiance import Field, RadianceField
 from neoedit.geometry import OrientedBox, points_in_boxes
@@ -80,6 +82,24 @@ class DistillConfig:
     batch is drawn through a box (``focus`` of ``rays`` of them, the same number of useful
     rays as without this) and stage 1 compares only the samples inside the boxes."""
     seed: int = 0
+
+    def check(self, where: str = "--edit.distill") -> None:
+        """Refuse settings that would write a version whose student never trained (before
+        any work starts)."""
+        if not _whole(self.rays, 1):
+            raise NeoError(f"{where}.rays must be a whole number >= 1")
+        for name in ("field_steps", "render_steps", "box_points"):
+            if not _whole(getattr(self, name), 0):
+                raise NeoError(f"{where}.{name.replace('_', '-')} must be a whole number >= 0")
+        if self.field_steps + self.render_steps < 1:
+            raise NeoError(f"{where}: field-steps and render-steps are both 0: nothing would learn")
+        numbers = ("focus", "opacity_step_m", "lambda_depth", "lr", "mlp_lr_factor")
+        for name in (*numbers, "patch_mlp_lr_factor"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+                raise NeoError(f"{where}.{name.replace('_', '-')} must be a finite number >= 0")
+        if self.focus > 1 or self.lr <= 0 or self.opacity_step_m <= 0:
+            raise NeoError(f"{where}: focus must be in [0, 1], lr and opacity-step-m > 0")
 
 
 class RayPool:
@@ -278,3 +298,7 @@ def distill(
     for part, _ in parts:
         part.requires_grad_(False)
     return losses
+
+
+def _whole(value: object, least: int) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value >= least

@@ -171,6 +171,8 @@ def move(
             "--preview, --method seal3d or --edit.student field)"
         )
     check_motions(parent, motions)
+    cfg.distill.check("--edit.distill")
+    cfg.seal3d.check("--edit.seal3d")
     cfg.remove.refine.check("--edit.remove.refine")
     cfg.language.check("--edit.language")
     t0 = time.perf_counter()

@@ -109,6 +109,8 @@ def check_config(cfg: Any, where: str) -> None:
             check_config(value, name)
             continue
         if f.name not in BOUNDS:
+            if isinstance(value, float) and not math.isfinite(value):
+                raise NeoError(f"{name} must be a finite number, got {value!r}")
             continue
         if not _finite_number(value):
             raise NeoError(f"{name} must be a finite number, got {shorten(value)!r}")
