@@ -191,6 +191,29 @@ def test_a_json_file_is_replaced_only_with_overwrite_and_never_a_scenes_own(tmp_
     assert user.read_text() == '{"lr": 0.01}'
 
 
+def test_a_second_writer_of_one_output_fails_before_its_work(tmp_path):
+    """Issue 42: two `neo train` into one --out both said "wrote" and one replaced the other."""
+    import subprocess
+    import sys
+
+    out = tmp_path / "scene"
+    code = (
+        "import sys, time; from neoedit.utils.io import check_writable_output; "
+        "check_writable_output(sys.argv[1], [], 'scene'); print('held', flush=True); time.sleep(60)"
+    )
+    writer = subprocess.Popen([sys.executable, "-c", code, str(out)], stdout=subprocess.PIPE)
+    try:
+        assert writer.stdout.readline().strip() == b"held"
+        with pytest.raises(io.NeoError, match="being written by another neo process"):
+            io.check_writable_output(tmp_path / "." / "scene", [], "scene")
+        io.check_writable_output(tmp_path / "other", [], "scene")  # another output: free
+    finally:
+        writer.kill()
+        writer.wait()
+    io.check_writable_output(out, [], "scene")  # a killed writer's lock is released
+    io.check_writable_output(out, [], "scene")  # and this process may check it again
+
+
 def test_no_output_goes_inside_a_scene_or_a_store(tmp_path):
     scene = tmp_path / "scene"
     scene.mkdir()

@@ -89,6 +89,8 @@ def test_resume_continues(sim_root: Path, tmp_path: Path):
     assert (out / "optimizer.safetensors").is_file()
     with pytest.raises(NeoError, match="--resume"):
         tiny_train(sim_root / "removal_1" / "pre", out, steps=30)
+    with pytest.raises(NeoError, match="not the dataset this scene was trained on"):
+        tiny_train(sim_root / "pick_place_1" / "pre", out, steps=30, resume=True)
     first = {k: v.clone() for k, v in load_scene(out).field.state_dict().items()}
     scene = tiny_train(sim_root / "removal_1" / "pre", out, steps=30, resume=True)
     assert scene.meta.step == 30

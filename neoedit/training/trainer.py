@@ -17,7 +17,7 @@ from neoedit.cameras.rays import CameraTensors
 from neoedit.data import SceneData, load_scene_data
 from neoedit.data.bounds import alpha_hull_box
 from neoedit.data.downscale import DataConfig
-from neoedit.data.scan import scan_record
+from neoedit.data.scan import scan_from_record, scan_record
 from neoedit.data.sparse_depth import is_sparse, sparse_pixels
 from neoedit.errors import NeoError
 from neoedit.fields.patched import PatchedField
@@ -147,6 +147,33 @@ def scene_box_and_source(data: SceneData) -> tuple[np.ndarray, str]:
         [np.minimum(cam_box[0], center - radius), np.maximum(cam_box[1], center + radius)]
     )
     return box, "cameras"
+
+
+def _fingerprint(data: SceneData, frames: int = 8) -> dict[str, list[list[float]]]:
+    """Mean colour (0-255) of the first frames: tells two scans with the same cameras apart
+    (NEO-Sim's scenes share their camera paths)."""
+    means = data.images[:frames].reshape(min(frames, len(data.images)), -1, 3).mean(1)
+    return {"image_means": np.round(means, 2).tolist()}
+
+
+def _check_same_scan(scene: Scene, data: SceneData) -> None:
+    """--resume continues a training on the data it started with (the same frames and
+    cameras; the folder may have moved): anything else would mix two scenes silently."""
+    if not scene.meta.scan:
+        return
+    cameras, paths, _ = scan_from_record(scene.meta.scan)
+    means = scene.meta.scan.get("image_means")  # scenes trained before it: cameras only
+    same = (
+        paths == list(data.file_paths)
+        and len(cameras) == len(data.cameras)
+        and np.allclose(cameras.camera_to_world, data.cameras.camera_to_world, atol=1e-5)
+        and (means is None or np.allclose(means, _fingerprint(data)["image_means"], atol=1.0))
+    )
+    if not same:
+        raise NeoError(
+            f"--resume: {data.root} is not the dataset this scene was trained on "
+            f"({scene.meta.data_path}); train a new scene with another --out"
+        )
 
 
 def psnr(mse: float) -> float:
@@ -406,6 +433,7 @@ def train(
     field_cfg = _field_config(field_cfg, data)
     if resume:
         scene = load_scene(out, dev)
+        _check_same_scan(scene, data)
         scene.meta.train = dataclasses.asdict(cfg)
     else:
         if (Path(out) / "scene.json").exists():
@@ -423,7 +451,7 @@ def train(
             grid=grid_cfg or OccupancyGridConfig(),
             render=render_cfg,
             train=dataclasses.asdict(cfg),
-            scan=scan_record(data.cameras, data.file_paths, data.split),
+            scan={**scan_record(data.cameras, data.file_paths, data.split), **_fingerprint(data)},
         )
         scene = Scene.create(meta, dev, seed=cfg.seed)
     if resume and scene.meta.edits and language is not None:

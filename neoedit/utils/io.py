@@ -13,6 +13,8 @@ user's umask.
 from __future__ import annotations
 
 import contextlib
+import fcntl
+import hashlib
 import json
 import os
 import re
@@ -357,6 +359,37 @@ def check_writable_output(
     probe_writable(anchor)
     if anchor == out.parent:
         clean_stale_temporaries(anchor)
+    lock_output(out)
+
+
+_HELD_LOCKS: dict[str, int] = {}
+"""Outputs this process holds the writer lock of (file descriptors, kept open until exit)."""
+
+
+def lock_output(out: Path) -> None:
+    """Hold, for the rest of this process, the lock on writing ``out``: a second neo process
+    that is to write the same output fails at its checks, before its work, instead of
+    silently replacing the first one's result. The locks live in the temporary folder (one
+    per user), not beside the user's files; the system releases them when a process ends,
+    killed or not. Best effort: where no lock file can be made, nothing is locked."""
+    key = hashlib.sha256(str(Path(out).resolve()).encode()).hexdigest()[:24]
+    if key in _HELD_LOCKS:
+        return
+    try:
+        folder = Path(tempfile.gettempdir()) / f"neoedit-locks-{os.getuid()}"
+        folder.mkdir(mode=0o700, exist_ok=True)
+        fd = os.open(folder / f"{key}.lock", os.O_RDWR | os.O_CREAT, 0o600)
+    except OSError:
+        return
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        os.close(fd)
+        raise NeoError(
+            f"{out} is being written by another neo process; wait for it to finish or choose "
+            "another output"
+        ) from None
+    _HELD_LOCKS[key] = fd
 
 
 def default_output(kind: str, scene: Path, request: str) -> Path:
