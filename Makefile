@@ -24,7 +24,7 @@ $(STAMP): pyproject.toml
 # Table I's rows for one small NEO-Sim scene with neo bench.
 demo: $(STAMP)
 	$(VENV)/bin/neo sim scene examples/demo_scene.yaml --out $(DEMO_OUT)/sim --overwrite
-	rm -rf $(DEMO_OUT)/scene $(DEMO_OUT)/render $(DEMO_OUT)/eval_images $(DEMO_OUT)/query $(DEMO_OUT)/no_mug $(DEMO_OUT)/mug_preview $(DEMO_OUT)/mug_moved $(DEMO_OUT)/moved_render $(DEMO_OUT)/plan $(DEMO_OUT)/plan_diff $(DEMO_OUT)/grasp
+	rm -rf $(DEMO_OUT)/scene $(DEMO_OUT)/render $(DEMO_OUT)/eval_images $(DEMO_OUT)/query $(DEMO_OUT)/no_mug $(DEMO_OUT)/mug_preview $(DEMO_OUT)/mug_moved $(DEMO_OUT)/moved_render $(DEMO_OUT)/plan $(DEMO_OUT)/plan_diff $(DEMO_OUT)/grasp $(DEMO_OUT)/eval.json $(DEMO_OUT)/query.json $(DEMO_OUT)/no_mug_eval.json $(DEMO_OUT)/mug_moved_query.json
 	$(VENV)/bin/neo train $(DEMO_OUT)/sim/pre --out $(DEMO_OUT)/scene --max-steps 600 --eval-every 200
 	$(VENV)/bin/neo render $(DEMO_OUT)/scene --views spiral --n-frames 36 --video --out $(DEMO_OUT)/render
 	$(VENV)/bin/neo eval $(DEMO_OUT)/scene --data $(DEMO_OUT)/sim/pre --json $(DEMO_OUT)/eval.json --images $(DEMO_OUT)/eval_images
