@@ -9,6 +9,7 @@ import tempfile
 from pathlib import Path
 
 import pytest
+import torch
 from hypothesis import settings
 
 from neoedit.fields.hashgrid import HashGridConfig
@@ -71,6 +72,28 @@ def tiny_train(data: Path, out: Path, steps: int, resume: bool = False, language
         resume=resume,
         language=language,
     )
+
+
+def tiny_trainer(data_path: Path, near_m: float, cfg: TrainConfig):
+    """An in-memory Trainer of the tiny field on a dataset (constant background: RGBA data)
+    that has run ``cfg.max_steps`` steps; nothing is saved."""
+    from neoedit.data import load_scene_data
+    from neoedit.scene import Scene, SceneMeta
+    from neoedit.training.trainer import Trainer, scene_box
+
+    data = load_scene_data(data_path)
+    meta = SceneMeta(
+        data_path=str(data_path),
+        aabb_m=scene_box(data),
+        background_rgb=list(data.background_rgb),
+        field=dataclasses.replace(TINY_FIELD, learned_background=False),
+        grid=TINY_GRID,
+        render=dataclasses.replace(TINY_RENDER, near_m=near_m),
+    )
+    trainer = Trainer(data, Scene.create(meta), cfg, None, torch.device("cpu"))
+    for step in range(cfg.max_steps):
+        trainer.step(step)
+    return trainer
 
 
 def tiny_scene(name: str):

@@ -1,6 +1,6 @@
 """Each object's colour as the scan shows it (issue 39, item 1): the per-object mean colour
 that `neo eval` reports, checked against a brute-force reference and on a trained scene;
-the error-map pixel sampler draws where the error is."""
+"""
 
 from __future__ import annotations
 
@@ -9,17 +9,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
 
-from neoedit.data import load_scene_data
 from neoedit.eval.evaluate import render_views
 from neoedit.eval.metrics import ObjectColours
-from neoedit.scene import Scene, SceneMeta
 from neoedit.sim.run import simulate_scene
 from neoedit.sim.spec import ScanSpec
-from neoedit.training.pixel_sampler import ErrorMapSampler
-from neoedit.training.trainer import TrainConfig, Trainer, scene_box
-from tests.conftest import TINY_FIELD, TINY_GRID, TINY_RENDER, tiny_scene
+from neoedit.training.trainer import TrainConfig
+from tests.conftest import tiny_scene, tiny_trainer
 
 
 def test_object_colours_match_a_brute_force_mean():
@@ -45,30 +41,6 @@ def test_object_colours_match_a_brute_force_mean():
     assert result["mug"]["error"] > 20  # the red shift, where nothing is clipped at 1
 
 
-def test_error_map_draws_where_the_error_is():
-    gen = torch.Generator().manual_seed(0)
-    sampler = ErrorMapSampler(2, 32, 48, share=0.5, device=torch.device("cpu"), cell_px=8)
-    img, v, u = sampler.draw(4000, gen)
-    assert img.max() < 2 and v.max() < 32 and u.max() < 48 and len(img) == 4000
-    # every pixel trained once: image 1's top-left cell is wrong, the rest right
-    grid = torch.stack(
-        torch.meshgrid(torch.arange(2), torch.arange(32), torch.arange(48), indexing="ij")
-    )
-    i, r, c = (a.reshape(-1) for a in grid)
-    err = ((i == 1) & (r < 8) & (c < 8)).float()
-    sampler.update(i, r, c, err)
-    img, v, u = sampler.draw(4000, gen)
-    hot = ((img == 1) & (v < 8) & (u < 8)).float().mean()
-    # half the batch by error (almost all of it to the hot cell) + its 1/48 of the rest
-    assert 0.45 < float(hot) < 0.56
-    uniform = ErrorMapSampler(2, 32, 48, share=0.0, device=torch.device("cpu"))
-    uniform.update(i, r, c, err)
-    img, v, u = uniform.draw(4000, gen)
-    assert float(((img == 1) & (v < 8) & (u < 8)).float().mean()) < 0.05
-    with pytest.raises(ValueError):
-        ErrorMapSampler(1, 8, 8, share=1.0, device=torch.device("cpu"))
-
-
 @pytest.fixture(scope="module")
 def colour_scan(tmp_path_factory) -> Path:
     """removal_1 at 128x96 (16 views): the mug, duck and ball cover ~100-200 pixels."""
@@ -82,21 +54,9 @@ def test_trained_scene_renders_each_object_in_its_own_colour(colour_scan: Path):
     """600 tiny steps: every object's mean colour on held-out views near the truth. The
     tolerance (30/255) holds what a field this small gets right and fails on colour bugs
     (swapped channels, a gamma curve, a wrong background: 60-200/255 on the mug or duck)."""
-    data = load_scene_data(colour_scan)
-    meta = SceneMeta(
-        data_path=str(colour_scan),
-        aabb_m=scene_box(data),
-        background_rgb=list(data.background_rgb),
-        field=dataclasses.replace(TINY_FIELD, learned_background=False),
-        grid=TINY_GRID,
-        render=dataclasses.replace(TINY_RENDER, near_m=0.19),
-    )
-    cfg = TrainConfig(
-        max_steps=600, rays_per_batch=1024, eval_views=3, depth_loss_weight=0.1, error_sampling=0.5
-    )
-    trainer = Trainer(data, Scene.create(meta), cfg, None, torch.device("cpu"))
-    for step in range(cfg.max_steps):
-        trainer.step(step)
+    cfg = TrainConfig(max_steps=600, rays_per_batch=1024, eval_views=3, depth_loss_weight=0.1)
+    trainer = tiny_trainer(colour_scan, 0.19, cfg)
+    data = trainer.data
     trainer.finish_grid()
     test = list(data.indices("test"))
     colours = ObjectColours(data.instance_names, erode_px=1)

@@ -12,15 +12,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
 
 from neoedit.cameras import Cameras, look_at
 from neoedit.data import load_scene_data
 from neoedit.data.bounds import alpha_hull_box
-from neoedit.scene import Scene, SceneMeta
 from neoedit.sim.blender_scene import BlenderSceneSpec, write_blender_scene
-from neoedit.training.trainer import TrainConfig, Trainer, median_camera_distance, scene_box
-from tests.conftest import TINY_FIELD, TINY_GRID, TINY_RENDER
+from neoedit.training.trainer import TrainConfig, median_camera_distance, scene_box
+from tests.conftest import tiny_trainer
 
 
 def sphere_views(n: int, size: int, centre: np.ndarray, radius: float):
@@ -76,19 +74,8 @@ def test_blender_scene_box_is_tight(blender_root: Path):
 
 
 def test_end_of_training_grid_and_fast_march_keep_the_fields_quality(blender_root: Path):
-    data = load_scene_data(blender_root)
-    meta = SceneMeta(
-        data_path=str(blender_root),
-        aabb_m=scene_box(data),
-        background_rgb=list(data.background_rgb),
-        field=dataclasses.replace(TINY_FIELD, learned_background=False),
-        grid=TINY_GRID,
-        render=dataclasses.replace(TINY_RENDER, near_m=1.0),
-    )
     cfg = TrainConfig(max_steps=300, rays_per_batch=1024, eval_views=4, sparsity_loss_weight=0.01)
-    trainer = Trainer(data, Scene.create(meta), cfg, None, torch.device("cpu"))
-    for step in range(cfg.max_steps):
-        trainer.step(step)
+    trainer = tiny_trainer(blender_root, 1.0, cfg)
     running = trainer.evaluate()
     trainer.finish_grid()
     rebuilt = trainer.evaluate()
@@ -96,7 +83,7 @@ def test_end_of_training_grid_and_fast_march_keep_the_fields_quality(blender_roo
     assert rebuilt >= running - 0.05, (running, rebuilt)
     # the march against the training sampler with enough samples to have converged
     trainer.scene.meta.render = dataclasses.replace(
-        meta.render, fast_render=False, n_coarse_samples=192, n_samples=128
+        trainer.scene.meta.render, fast_render=False, n_coarse_samples=192, n_samples=128
     )
     sampler = trainer.evaluate()
     assert abs(rebuilt - sampler) <= 0.1, (rebuilt, sampler)

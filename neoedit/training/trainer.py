@@ -28,7 +28,6 @@ from neoedit.rendering.renderer import RenderConfig, render_image, render_rays
 from neoedit.rendering.volume import distortion_loss, opacity_penalty
 from neoedit.scene import Scene, SceneMeta, load_scene, save_scene
 from neoedit.storage import find_store, is_store
-from neoedit.training.pixel_sampler import ErrorMapSampler
 from neoedit.utils.device import resolve_device
 from neoedit.utils.optim import field_param_groups, load_optimizer_state, make_adam
 from neoedit.utils.progress import make_progress
@@ -42,13 +41,6 @@ class TrainConfig:
     """Also stop after this much training time (periodic evaluation excluded)."""
     rays_per_batch: int = 2048
     """Rays per step, drawn at random from all training pixels."""
-    error_sampling: float = 0.0
-    """Share of each batch drawn where the colour error is high (a per-image error map of
-    8x8-pixel cells, :mod:`neoedit.training.pixel_sampler`), the rest uniformly (0: all
-    uniform). Small objects otherwise get a gradient share as small as their pixel share.
-    Measured on NEO-Sim pick_place_1, 3 minutes: with 0.5 the mug's colour error was 3.5
-    and 12.4 /255 in two runs (uniform: 9.6), held out 0.3 dB lower, 25 % fewer rays/s: no
-    reliable gain, so off by default."""
     lr: float = 2e-2
     """Adam learning rate at the start; decays exponentially to lr * lr_final_factor at
     --max-steps or at --max-minutes, whichever comes first. Measured on NEO-Sim removal_1
@@ -226,7 +218,6 @@ class Trainer:
             else:
                 self.depth = torch.as_tensor(depth, device=device)
         self.generator = torch.Generator(device=device).manual_seed(cfg.seed)
-        self.pixels = ErrorMapSampler(*self.images.shape[:3], cfg.error_sampling, device)
         self.extra_losses: list[Callable[[int], torch.Tensor]] = []
         """More loss terms, called with the step number (edits add theirs here)."""
         if not isinstance(scene.field, RadianceField):
@@ -238,12 +229,15 @@ class Trainer:
     def batch(
         self,
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor | None]:
-        """Training pixels (:class:`ErrorMapSampler`): image index, row, column, target colour (N,3) in [0,1] and
+        """Random training pixels: image index, row, column, target colour (N,3) in [0,1] and
         target z-depth (N,) [m] (0: none; None without depth). With sparse depth,
         ``sparse_depth_rays`` pixels that have one follow the ``rays_per_batch`` random ones
         (they train the depth only, so the colour loss stays that of random pixels)."""
+        t, h, w = self.images.shape[:3]
         n = self.cfg.rays_per_batch
-        img, v, u = self.pixels.draw(n, self.generator)
+        img = torch.randint(0, t, (n,), device=self.device, generator=self.generator)
+        v = torch.randint(0, h, (n,), device=self.device, generator=self.generator)
+        u = torch.randint(0, w, (n,), device=self.device, generator=self.generator)
         depth = None if self.depth is None else self.depth[img, v, u]
         if self.sparse_depth is not None:
             where, values = self.sparse_depth
@@ -289,7 +283,6 @@ class Trainer:
         )
         n = self.cfg.rays_per_batch  # the random pixels (sparse-depth rays follow them)
         sq_err = ((out["rgb"][:n] - target[:n]) ** 2).mean(-1)
-        self.pixels.update(img[:n], v[:n], u[:n], sq_err.detach())
         if self.loss_mask is not None:
             keep = self.loss_mask[img[:n], v[:n], u[:n]].float()
             mse = (sq_err * keep).sum() / keep.sum().clamp_min(1.0)

@@ -313,11 +313,6 @@ def check_train_options(
         _require(_finite_number(value) and value >= 0, f"--{name.replace('_', '-')} must be >= 0")
     for name in ("sparsity_loss_weight", "depth_loss_weight"):
         _require(_finite_number(getattr(train, name)), f"--{name.replace('_', '-')} must be finite")
-    share = getattr(train, "error_sampling", 0.0)
-    _require(
-        _finite_number(share) and 0 <= share < 1,
-        f"--error-sampling must be in [0, 1), got {share}",
-    )
     check_config(field, "--field")
     check_config(grid, "--grid")
     check_config(render, "--render")
