@@ -23,6 +23,9 @@ from neoedit.utils.progress import track
 DEPTH_UNIT_M = 1e-3
 MAX_FRAMES = 3600
 """Most spiral frames one render writes (two minutes of video at 30 fps)."""
+RESERVED_DIRS = ("depth", "depth_vis")
+RESERVED_FILES = ("transforms.json", "video.gif", "video.mp4")
+"""What a render writes besides the RGB frames (no frame may be named so)."""
 
 
 def spiral_cameras(cameras: Cameras, n_frames: int) -> Cameras:
@@ -142,6 +145,16 @@ def _check_names(names: list[str], where: object) -> None:
     """Output file names: relative, inside OUT, one per view."""
     for name in names:
         check_file_path(name, f"{where}")
+    for name in names:
+        parts = Path(name).parts
+        parts = parts[1:] if parts[:1] == (".",) else parts
+        if parts[:1] and (
+            parts[0] in RESERVED_DIRS or (len(parts) == 1 and parts[0] in RESERVED_FILES)
+        ):
+            raise NeoError(
+                f"{where}: file_path {name!r} would overwrite the render's own "
+                f"{'/'.join(parts[:1])}; the RGB frames go under another name (e.g. images/...)"
+            )
     seen = {Path(n).with_suffix("").as_posix().removeprefix("./") for n in names}
     if len(seen) != len(names):
         raise NeoError(f"{where}: two frames share a file_path; each view needs its own name")

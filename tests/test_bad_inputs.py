@@ -162,17 +162,17 @@ CASES = [
     C("info-pose-bottom-row", "info {data}", 2, "last row", set_frame(0, transform_matrix=[[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 1, 1]])),
     C("render-cameras-negative-focal", "render {scene} --cameras cams.json --out r", 2, "must be positive", cameras(fl_x=-5)),
     # 4. impossible options
-    C("train-negative-steps", "train {data} --out s --max-steps -5", 2, "--max-steps must be at least 1"),
+    C("train-negative-steps", "train {data} --out s --max-steps -5", 2, "--max-steps must be >= 0"),
     C("train-zero-steps", "train {data} --out s --max-steps 0", 2, "--max-steps"),
     C("train-zero-minutes", "train {data} --out s --max-minutes 0", 2, "--max-minutes"),
-    C("train-nan-lr", "train {data} --out s --lr nan", 2, "--lr must be > 0"),
+    C("train-nan-lr", "train {data} --out s --lr nan", 2, "--lr must be a finite number"),
     C("train-zero-rays", "train {data} --out s --rays-per-batch 0", 2, "--rays-per-batch"),
     C("train-negative-eval-views", "train {data} --out s --eval-views -1", 2, "--eval-views"),
-    C("train-zero-hidden", "train {data} --out s --field.hidden-dim 0", 2, "hidden_dim"),
-    C("train-huge-hash", "train {data} --out s --field.hashgrid.log2-hashmap-size 64", 2, "log2_hashmap_size"),
+    C("train-zero-hidden", "train {data} --out s --field.hidden-dim 0", 2, "--field.hidden-dim = 0 is out of range"),
+    C("train-huge-hash", "train {data} --out s --field.hashgrid.log2-hashmap-size 64", 2, "--field.hashgrid.log2-hashmap-size = 64"),
     C("train-bad-backend", "train {data} --out s --field.hashgrid.backend banana", 2, "backend"),
     C("train-zero-grid", "train {data} --out s --grid.resolution 0", 2, "resolution"),
-    C("train-zero-samples", "train {data} --out s --render.n-samples 0", 2, "n_samples"),
+    C("train-zero-samples", "train {data} --out s --render.n-samples 0", 2, "--render.n-samples = 0"),
     C("train-bad-teacher", "train {data} --out s --language.teacher banana", 2, "--language.teacher"),
     C("train-missing-clip", "train {data} --out s --language.clip-path /nonexistent/clip", 2, "does not exist"),
     C("train-resume-nothing-to-do", "train {data} --out {scene} --resume --max-steps 1 --skip-language", 2, "nothing to do"),
@@ -244,6 +244,32 @@ CASES = [
     C("query-long-prompt", f"query {{scene}} {LONG} --views 0", 2, "no language field"),
     C("query-empty-prompt", "query {scene} ' ; '", 2, "empty prompt"),
     C("query-negative-views", "query {scene} mug --views -1", 2, "--views"),
+    # 14. issue 42: options by range in one place; parse errors one short message
+    C("no-arguments", "", 2, "Expected one of"),
+    C("unknown-option-short", "move {scene} --box mug.json --out v --steps 5", 2, "did you mean", MUG),
+    C("query-eps-inf", "query {scene} mug --query.eps-m inf", 2, "--query.eps-m must be a finite number"),
+    C("query-no-canonical", "query {scene} mug --query.canonical", 2, "--query.canonical needs"),
+    C("grasp-nan-width", "grasp {scene} mug --grasp.min-width-m nan", 2, "--grasp.min-width-m must be a finite"),
+    C("move-nan-translate", "move {scene} --box mug.json --translate 0.1 0 nan --out v", 2, "--translate must be finite", MUG),
+    C("bench-negative-seed", "bench --out b --seed -1", 2, "--seed must be >= 0"),
+    C("bench-ray-unreachable", "bench --out b --scenes removal_1 --methods pre-edit --ray 127.0.0.1:1", 2, "cannot reach the Ray cluster"),
+    C("bench-ray-malformed", "bench --out b --ray nowhere", 2, "--ray must be"),
+    # 15. files a user hands a command: bounded, regular, parsed with one message
+    C("plan-dev-zero", "plan {scene} /dev/zero --out st", 2, "the plan must be a file"),
+    C("plan-folder", "plan {scene} {ws} --out st", 2, "the plan must be a file (a folder)"),
+    C("plan-binary", "plan {scene} p.yaml --out st", 2, "not UTF-8 text", write("p.yaml", b"\xff\xfe\x00")),
+    C("plan-step-2-yaw", "plan {scene} p.json --out st", 2, "step 2: yaw_deg is in degrees", write("p.json", [{"type": "remove", "box": BOX_MUG}, {"type": "move", "box": BOX_MUG, "yaw_deg": 720}])),
+    C("plan-step-2-far", "plan {scene} p.json --out st", 2, "step 2 (move box): a move of 25.00 m leaves the scene box", write("p.json", [{"type": "remove", "box": BOX_MUG}, {"type": "move", "box": BOX_MUG, "translate_m": [25, 0, 0]}])),
+    C("plan-step-2-empty-prompt", "plan {scene} p.json --out st", 2, "step 2: the prompt is empty", write("p.json", [{"type": "remove", "box": BOX_MUG}, {"type": "remove", "prompt": " "}])),
+    C("plan-step-2-motions", "plan {scene} p.json --out st", 2, "1 object(s) but 2 motions", write("p.json", [{"type": "remove", "box": BOX_MUG}, {"type": "move", "prompt": "mug", "motions": [{"yaw_deg": 5}, {"yaw_deg": 9}]}])),
+    C("plan-step-2-box-outside", "plan {scene} p.json --out st", 2, "step 2 (remove box)", write("p.json", [{"type": "remove", "box": BOX_MUG}, {"type": "remove", "box": BOX_FAR}])),
+    C("move-transform-dev-zero", "move {scene} --box mug.json --transform /dev/zero --out v", 2, "must be a file", MUG),
+    C("sim-scene-radius-zero", "sim scene spec.yaml --out s", 2, "'scan.radius_m'", write("spec.yaml", "name: s\nobjects:\n  - {name: mug, urdf: 'pybullet_data:objects/mug.urdf'}\nscan: {radius_m: 0}\n")),
+    C("sim-scene-huge-width", "sim scene spec.yaml --out s", 2, "8 to 4096 pixels", write("spec.yaml", "name: s\nobjects:\n  - {name: mug, urdf: 'pybullet_data:objects/mug.urdf'}\nscan: {width: 1000000}\n")),
+    C("sim-execute-malformed", "sim execute bad --action 1 --grasp g.json --out e", 2, "not a NEO-Sim scene folder", chain(write("bad/scene.json", [1, 2]), write("g.json", {"position_m": [0, 0, 0.1], "rotation": np.eye(3).tolist(), "width_m": 0.05}))),
+    # 16. a render never overwrites its own outputs
+    C("render-cameras-named-transforms", "render {scene} --cameras cams.json --out r", 2, "would overwrite the render's own transforms.json", cameras_frame(file_path="transforms.json")),
+    C("render-cameras-under-depth", "render {scene} --cameras cams.json --out r", 2, "would overwrite the render's own depth", cameras_frame(file_path="depth/x.png")),
 ]
 # fmt: on
 
@@ -278,3 +304,33 @@ def test_every_defect_has_cases() -> None:
     for word in ("out-is-data", "focal", "steps", "model", "nan-weights", "banana", "pickled",
                  "frames", "far-away", "flat-aabb", "long-prompt"):  # fmt: skip
         assert word in ids, word
+
+
+def test_every_default_option_passes_the_range_rules() -> None:
+    """The one range check (neoedit.utils.options) accepts every verb's defaults: a rule
+    that refused a default would break a command nobody changed."""
+    import dataclasses
+    from typing import get_args
+
+    from neoedit.cli import Commands
+    from neoedit.utils.options import _default, check_options
+
+    def commands(t) -> list[type]:
+        found = []
+        for a in get_args(t):
+            if isinstance(a, type) and dataclasses.is_dataclass(a):
+                found.append(a)
+            elif get_args(a):
+                found += commands(a)
+        return found
+
+    verbs = commands(Commands)
+    assert len({v.__name__ for v in verbs}) >= 18
+    checked = 0
+    for verb in verbs:
+        for f in dataclasses.fields(verb):
+            value = _default(f)
+            if dataclasses.is_dataclass(value):
+                check_options(value, (f.name,))
+                checked += 1
+    assert checked >= 15

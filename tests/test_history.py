@@ -249,6 +249,43 @@ def test_a_killed_write_leaves_the_store_valid(chain: Path, tmp_path: Path):
     assert store.names() == names
     with pytest.raises(NeoError):
         store.set_current(partial.name)
+    # ... nor are the blobs it wrote before it died: the next write removes both
+    orphan = copy / "blobs" / f"{'ab' * 32}.st.z"
+    orphan.write_bytes(b"written by a killed writer")
+    blob_tmp = copy / "blobs" / f".{'cd' * 32}.st.z.neoedit-999999-0badc0de.tmp"
+    blob_tmp.write_bytes(b"half a blob")
+    kept = sorted(p.name for p in (copy / "blobs").iterdir() if p not in (orphan, blob_tmp))
+    save_scene(copy / "step_9", scene)
+    assert not partial.exists() and not orphan.exists() and not blob_tmp.exists()
+    assert set(kept) <= {p.name for p in (copy / "blobs").iterdir()}  # every version's blobs
+    for n in [*names, "step_9"]:
+        load_scene(copy / n)
+
+
+def test_log_and_diff_read_any_record(chain: Path, tmp_path: Path, capsys):
+    """A record a user edited (a missing field) still lists; diffing a version with itself
+    says 'identical' and writes valid JSON (no Infinity)."""
+    import shutil
+
+    copy = tmp_path / "store"
+    shutil.copytree(chain, copy)
+    meta = json.loads((copy / "step_1" / "scene.json").read_text())
+    for key in ("type", "seconds", "transforms"):
+        meta["edits"][-1].pop(key, None)
+    (copy / "step_1" / "scene.json").write_text(json.dumps(meta))
+    capsys.readouterr()
+    assert main(["log", str(copy)]) == 0
+    out = capsys.readouterr().out
+    assert "step_1" in out and "step_3" in out, out
+    out_dir = tmp_path / "diff"
+    assert main(["diff", str(copy), "step_2", "step_2", "--out", str(out_dir), "--views", "1"]) == 0
+    assert "identical" in capsys.readouterr().out
+
+    def refuse(value: str) -> None:
+        raise ValueError(f"not JSON: {value}")
+
+    report = json.loads((out_dir / "diff.json").read_text(), parse_constant=refuse)
+    assert report["views"][0]["identical"] and report["views"][0]["psnr_a_vs_b"] is None
 
 
 def test_a_second_writer_gets_a_clear_lock_error(chain: Path, capsys):

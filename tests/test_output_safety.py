@@ -321,3 +321,50 @@ def test_input_scene_is_untouched_by_every_refusal_and_success(golden, tmp_path,
     ):
         assert run_neo(argv, capsys).traceback is None
     assert changes(before, snapshot(ws.scene)) == []
+
+
+def test_a_mount_point_out_is_refused_before_work(golden, tmp_path, capsys, monkeypatch):
+    """An empty folder that is a mount point cannot be replaced by a rename: refused at the
+    checks, not after the training (os.path.ismount stands in for a real mount)."""
+    ws = make_workspace(tmp_path / "ws", *golden)
+    mount = ws.path("mnt")
+    mount.mkdir()
+    real = os.path.ismount
+    monkeypatch.setattr(io.os.path, "ismount", lambda p: Path(p) == mount or real(p))
+    res = run_neo(["train", ws.data, "--out", mount, *TINY_TRAIN_ARGS], capsys)
+    assert res.code == 2 and "is a mount point" in res.err and not any(mount.iterdir())
+
+
+def test_a_work_folder_a_killed_process_left_is_removed_by_the_next_write(tmp_path):
+    out = tmp_path / "dataset"
+    with io.work_directory(out) as work:
+        (work / "frames").mkdir()
+        assert work.parent == tmp_path and work.name.startswith(".dataset.neoedit-")
+    assert not work.exists()
+    dead = tmp_path / ".dataset.neoedit-999999-0badc0de.tmp"  # what a SIGKILL leaves
+    (dead / "frames").mkdir(parents=True)
+    io.check_writable_output(tmp_path / "other", kind="dataset")
+    assert not dead.exists()
+
+
+def test_parse_errors_are_condensed_to_a_few_lines():
+    from neoedit.cli._parse import condense
+
+    box = "\n".join(
+        [
+            "╭─ Unrecognized options ─────────╮",
+            "│ Unrecognized options: --stepz  │",
+            "│ ────────────────────────────── │",
+            "│ Perhaps you meant:             │",
+            *[f"│     --a.b{i}.steps INT  │\n│         help {i} │" for i in range(40)],
+            "│ ────────────────────────────── │",
+            "│ For full helptext, run neo move --help │",
+            "╰────────────────────────────────╯",
+        ]
+    )
+    plain = box.replace("╭─ Unrecognized options ─────────╮", " Unrecognized options\n ----- ")
+    for text in (box, plain.replace("│", " ").replace("─", "-").replace("╰", " ").replace("╯", "")):
+        lines = condense(text, "neo move").splitlines()
+        assert lines[0] == "error: Unrecognized options: --stepz"
+        assert lines[1] == "  did you mean: " + ", ".join(f"--a.b{i}.steps" for i in range(5))
+        assert lines[2] == "  every option: neo move --help" and len(lines) == 3

@@ -9,6 +9,7 @@ different thread count may differ in their last bits).
 
 from __future__ import annotations
 
+import socket
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -76,12 +77,32 @@ def _check_out(out: Path) -> None:
         raise NeoError(f"{out} exists and is not a neo bench folder; choose another --out")
 
 
+def check_ray_address(address: str, timeout_s: float = 5.0) -> None:
+    """A 'host:port' or 'ray://host:port' cluster address must answer before any work (Ray's
+    own client retries an unreachable address for minutes); 'auto' is left to Ray."""
+    if address == "auto":
+        return
+    hostport = address.split("://", 1)[-1].rstrip("/")
+    host, sep, port = hostport.rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise NeoError(f"--ray must be 'auto', HOST:PORT or ray://HOST:PORT, got {address!r}")
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=timeout_s).close()
+    except OSError as e:
+        raise NeoError(
+            f"cannot reach the Ray cluster at {address} ({e.strerror or e}); start one with "
+            "'ray start --head' or check --ray"
+        ) from None
+
+
 def prepare(cfg: BenchConfig) -> tuple[Context, list[Unit], dict[str, str]]:
     """Check the selection and plan the units, before any work."""
     if cfg.workers < 1:
         raise NeoError(f"--workers must be at least 1, got {cfg.workers}")
     if cfg.workers > 1 and cfg.ray_address:
         raise NeoError("give --workers N (a local Ray) or --ray ADDRESS (a cluster), not both")
+    if cfg.ray_address:
+        check_ray_address(cfg.ray_address)
     specs = suite_specs(cfg.profile, cfg.seed)
     scenes = list(dict.fromkeys(cfg.scenes)) or list(specs)  # a repeated name runs once
     methods = list(dict.fromkeys(cfg.methods)) or list(ALL_METHODS)

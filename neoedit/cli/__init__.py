@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from typing import Annotated, Union
 
 import tyro
 from rich.console import Console
 
+from neoedit.cli._parse import parse
 from neoedit.cli.bench import BenchCommand
 from neoedit.cli.data import InfoCommand
 from neoedit.cli.edit import MoveCommand, RemoveCommand
@@ -22,6 +24,8 @@ from neoedit.cli.plan import PlanCommand
 from neoedit.cli.sim import SimBenchmarkCommand, SimExecuteCommand, SimSceneCommand
 from neoedit.cli.view import ViewCommand
 from neoedit.errors import NeoError
+from neoedit.utils.options import check_options
+from neoedit.utils.progress import QUIET_ENV
 from neoedit.utils.threads import configure_threads, parse_threads
 from neoedit.utils.validate import check_device, resource_message, user_message
 
@@ -60,8 +64,8 @@ Commands = Union[  # noqa: UP007
 
 THREADS_HELP = (
     "Every verb also takes --threads N (or NEO_THREADS=N): CPU threads of torch and numba "
-    "(default: the cores this process may use), and --verbose: also show the model "
-    "libraries' own loading bars and logs."
+    "(default: the cores this process may use); --verbose: also show the model "
+    "libraries' own loading bars and logs; --quiet: no progress bars, only results and errors."
 )
 
 
@@ -97,14 +101,40 @@ def quiet_third_party() -> None:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``neo``; returns the exit status (0 ok, 2 bad input, 130 interrupted)."""
     args, threads = pop_threads(list(sys.argv[1:] if argv is None else argv))
+    quiet = "--quiet" in args  # results and errors only: no progress bars
+    args = [a for a in args if a != "--quiet"]
     if "--verbose" in args:
         args = [a for a in args if a != "--verbose"]
     else:
         quiet_third_party()
-    command = tyro.cli(Commands, prog="neo", args=args, description=THREADS_HELP)
+    command = parse(Commands, args, THREADS_HELP)
+    with _env(QUIET_ENV, "1" if quiet else os.environ.get(QUIET_ENV)):
+        return _run(command, threads)
+
+
+@contextlib.contextmanager
+def _env(name: str, value: str | None) -> Iterator[None]:
+    """``name`` set to ``value`` (unset for None) while inside; restored after."""
+    before = os.environ.get(name)
+    if value is None:
+        os.environ.pop(name, None)
+    else:
+        os.environ[name] = value
+    try:
+        yield
+    finally:
+        if before is None:
+            os.environ.pop(name, None)
+        else:
+            os.environ[name] = before
+
+
+def _run(command: object, threads: str | None) -> int:
+    """Run a parsed command; errors -> one line on stderr and the exit status."""
     err = Console(stderr=True)
     try:
         configure_threads(None if threads is None else parse_threads(threads))
+        check_options(command)
         check_device(getattr(command, "device", "auto"))
         command.run()
     except (NeoError, OSError) as e:  # OSError: a file that cannot be read or written

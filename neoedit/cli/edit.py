@@ -20,6 +20,7 @@ from neoedit.errors import NeoError
 from neoedit.geometry import OrientedBox
 from neoedit.language.localize import QueryConfig
 from neoedit.scene import Scene
+from neoedit.utils.userfile import read_data_file
 
 console = Console()
 
@@ -193,12 +194,7 @@ def motion_for(box: OrientedBox, motion: np.ndarray | tuple[np.ndarray, float]) 
 
 def read_transform(path: Path) -> np.ndarray:
     """A 4x4 matrix from a JSON file: a list of 4 rows, or {"transform_world": rows}."""
-    try:
-        raw = json.loads(Path(path).read_text())
-    except FileNotFoundError:
-        raise NeoError(f"transform file not found: {path}") from None
-    except (OSError, json.JSONDecodeError) as e:
-        raise NeoError(f"{path}: cannot read a transform: {e}") from None
+    raw = read_data_file(Path(path), "transform file")
     if isinstance(raw, dict):
         raw = raw.get("transform_world", raw.get("transform"))
     try:

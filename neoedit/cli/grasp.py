@@ -8,7 +8,6 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
 import tyro
 from rich.console import Console
 from rich.markup import escape
@@ -97,24 +96,10 @@ class GraspCommand:
             atomic_write_json(self.json, records)
 
     def _picture(self, scene, box, grasps, out: Path) -> None:
-        from neoedit.cameras.rays import CameraTensors
         from neoedit.utils.io import atomic_directory, write_png
-        from neoedit.viz.boxes import draw_box
-        from neoedit.viz.contact_sheet import tile_images
-        from neoedit.viz.grasps import draw_grasps, facing_view
+        from neoedit.viz.grasps import grasp_picture
 
-        cameras, _, split = scene.scan_cameras()
-        cameras = cameras.scaled(min(2.0, 480.0 / float(np.max(cameras.width))))
-        pool = np.asarray(split.get("train", np.arange(len(cameras))))
-        first = facing_view(cameras, pool, np.asarray(box.center_m))
-        views = [first, int(pool[(list(pool).index(first) + len(pool) // 3) % len(pool)])]
-        cams = CameraTensors(cameras, scene.field.aabb.device)
-        tiles = []
-        for i in views:
-            h, w = int(cameras.height[i]), int(cameras.width[i])
-            rgb = scene.render_image(cams, i, h, w)["rgb"].clamp(0, 1).cpu().numpy()
-            img = draw_box((rgb * 255).round().astype(np.uint8), cameras, i, box, (90, 90, 255), 1)
-            tiles.append(draw_grasps(img, cameras, i, grasps, self.grasp.gripper))
+        picture = grasp_picture(scene, box, grasps, self.grasp.gripper)
         with atomic_directory(out, overwrite=self.overwrite, kind="grasp") as tmp:
-            write_png(tmp / "grasps.png", tile_images(tiles, cols=len(tiles)))
+            write_png(tmp / "grasps.png", picture)
         console.print(f"wrote {escape(str(out / 'grasps.png'))}")

@@ -20,29 +20,43 @@ console = Console()
 
 
 def _motion_text(record: dict[str, Any]) -> str:
-    """'+x,+y,+z m, yaw' of each moved object (from its 4x4 transforms and boxes)."""
+    """'+x,+y,+z m, yaw' of each moved object (from its 4x4 transforms and boxes); '?' when
+    the record's motion cannot be read."""
     parts = []
-    for t, b in zip(record.get("transforms", []), record.get("boxes", []), strict=False):
-        t = np.asarray(t, dtype=np.float64)
-        c = np.asarray(b["center"], dtype=np.float64)
-        shift = t[:3, :3] @ c + t[:3, 3] - c
-        yaw = math.degrees(math.atan2(t[1, 0], t[0, 0]))
-        parts.append(f"[{', '.join(f'{v:+.3f}' for v in shift)}] m {yaw:+.0f}°")
+    try:
+        for t, b in zip(record.get("transforms") or [], record.get("boxes") or [], strict=False):
+            t = np.asarray(t, dtype=np.float64).reshape(4, 4)
+            c = np.asarray(b["center"], dtype=np.float64).reshape(3)
+            shift = t[:3, :3] @ c + t[:3, 3] - c
+            yaw = math.degrees(math.atan2(t[1, 0], t[0, 0]))
+            parts.append(f"[{', '.join(f'{v:+.3f}' for v in shift)}] m {yaw:+.0f}°")
+    except (KeyError, TypeError, ValueError, IndexError):
+        return "?"
     return "; ".join(parts)
 
 
+def _number(value: Any) -> float:
+    return float(value) if isinstance(value, (int, float)) and math.isfinite(value) else 0.0
+
+
 def _row(name: str, meta: dict[str, Any], parent: str, size: int | None) -> list[str]:
+    """One line of ``neo log``; a record with missing or malformed fields shows '?' there
+    (the records are JSON a user can edit: the log must still list every version)."""
     edits = meta.get("edits") or []
-    rec = edits[-1] if edits and edits[-1].get("version") == meta.get("version_id") else None
+    ok = isinstance(edits, list) and edits and isinstance(edits[-1], dict)
+    last = edits[-1] if ok else None
+    rec = last if last is not None and last.get("version") == meta.get("version_id") else None
     if rec is None:
-        what, prompt, motion, secs = "train", "", "", meta.get("train_seconds", 0.0)
+        what, prompt, motion, secs = "train", "", "", _number(meta.get("train_seconds"))
     else:
-        what = rec["type"] + (f" ({rec['method']})" if rec.get("method") else "")
-        if rec["type"] == "remove" and not rec.get("inpaint"):
+        what = str(rec.get("type", "?")) + (f" ({rec['method']})" if rec.get("method") else "")
+        if rec.get("type") == "remove" and not rec.get("inpaint"):
             what += " (cut)"
-        prompt, motion, secs = rec.get("prompt") or "box", _motion_text(rec), rec.get("seconds", 0)
-    mb = "" if size is None else f"{size / 1e6:.1f} MB"
-    return [name, meta.get("version_id", "?"), parent, what, prompt, motion, f"{secs:.0f} s", mb]
+        prompt, motion = str(rec.get("prompt") or "box"), _motion_text(rec)
+        secs = _number(rec.get("seconds"))
+    mb = "" if not isinstance(size, (int, float)) else f"{size / 1e6:.1f} MB"
+    cells = [name, str(meta.get("version_id", "?")), str(parent), what, prompt, motion]
+    return [escape(c) for c in cells] + [f"{secs:.0f} s", mb]
 
 
 @dataclass
@@ -57,7 +71,7 @@ class LogCommand:
         from neoedit.storage import SceneStore, is_store
 
         cols = ["version", "id", "parent", "edit", "prompt", "motion", "time", "size"]
-        table = Table(*cols, title=str(self.scene))
+        table = Table(*cols, title=escape(str(self.scene)))
         if is_store(self.scene):
             store = SceneStore(self.scene)
             current, total = store.current, store.size_bytes()
@@ -73,8 +87,9 @@ class LogCommand:
 
         meta = read_scene_meta(Path(self.scene))
         for rec in meta.edits:  # the lineage that led to this folder
-            fake = {"edits": [rec], "version_id": rec["version"]}
-            table.add_row(*_row("", fake, rec.get("parent") or "-", None))
+            rec = rec if isinstance(rec, dict) else {}
+            fake = {"edits": [rec], "version_id": rec.get("version", "?")}
+            table.add_row(*_row("", fake, str(rec.get("parent") or "-"), None))
         table.add_row(*_row(str(self.scene), dataclasses.asdict(meta), meta.parent or "-", None))
         console.print(table)
 
@@ -147,15 +162,16 @@ class DiffCommand:
         tiles, labels, report = [], [], []
         for k, (ia, ib) in enumerate(rows):
             mse = float(np.mean((ia.astype(np.float64) - ib.astype(np.float64)) ** 2)) / 255**2
-            psnr = 10 * math.log10(1 / mse) if mse > 0 else float("inf")
-            report.append({"view": k, "psnr_a_vs_b": round(psnr, 2)})
+            psnr = round(10 * math.log10(1 / mse), 2) if mse > 0 else None  # None: identical
+            report.append({"view": k, "psnr_a_vs_b": psnr, "identical": psnr is None})
             tiles += [ia, ib, difference_image(ia, ib)]
-            labels += [a, b, f"|{a}-{b}| x4 ({psnr:.1f} dB)"]
+            labels += [a, b, f"|{a}-{b}| x4 ({'identical' if psnr is None else f'{psnr:.1f} dB'})"]
         with atomic_directory(out, overwrite=self.overwrite, kind="diff") as tmp:
             write_png(tmp / "diff.png", tile_images(tiles, cols=3, labels=labels))
             atomic_write_json(tmp / "diff.json", {"a": a, "b": b, "views": report})
         for r in report:
             console.print(
-                f"view {r['view']}: {escape(a)} vs {escape(b)}: PSNR {r['psnr_a_vs_b']} dB"
+                f"view {r['view']}: {escape(a)} vs {escape(b)}: "
+                + ("identical" if r["identical"] else f"PSNR {r['psnr_a_vs_b']} dB")
             )
         console.print(f"wrote {escape(str(out / 'diff.png'))}")

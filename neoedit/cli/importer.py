@@ -18,7 +18,7 @@ from neoedit.data.orient import OrientConfig
 from neoedit.data.pieces import PieceCheckConfig
 from neoedit.data.sfm import SfMConfig
 from neoedit.errors import NeoError
-from neoedit.utils.io import check_writable_output
+from neoedit.utils.io import check_writable_output, work_directory
 
 
 @dataclass
@@ -170,7 +170,6 @@ class ProcessCommand:
 
     def run(self) -> None:
         import shutil
-        import tempfile
         import time
 
         from neoedit.data.colmap import read_colmap
@@ -185,13 +184,7 @@ class ProcessCommand:
         cfg = import_config(self)
         cfg.check()
         check_writable_output(self.out, [src], kind="dataset", overwrite=self.overwrite)
-        Path(self.out).absolute().parent.mkdir(parents=True, exist_ok=True)
-        work = Path(
-            tempfile.mkdtemp(
-                prefix=f".{Path(self.out).name}.sfm-", dir=Path(self.out).absolute().parent
-            )
-        )
-        try:
+        with work_directory(self.out) as work:
             t0 = time.perf_counter()
             images = src
             if is_video:
@@ -210,8 +203,6 @@ class ProcessCommand:
                 shutil.copytree(result.model, folder / "colmap" / "sparse" / "0")
 
             report = import_capture(capture, self.out, cfg, self.overwrite, extras=keep_model)
-        finally:
-            shutil.rmtree(work, ignore_errors=True)
         print_report(report)
 
 

@@ -48,9 +48,8 @@ class PlanCommand:
     def run(self) -> None:
         self.query.check()  # before any loading or training
         from neoedit.cli.edit import find_boxes
-        from neoedit.edit.plan import apply_action, load_plan, plan_boxes
+        from neoedit.edit.plan import apply_action, check_plan, load_plan, plan_boxes
         from neoedit.edit.remove import write_report
-        from neoedit.language.localize import NoMatch
         from neoedit.scene import load_scene, save_scene
         from neoedit.storage import SceneStore
         from neoedit.utils.device import resolve_device
@@ -68,6 +67,7 @@ class PlanCommand:
         scene = load_scene(self.scene, resolve_device(self.device))
         if scene.meta.language is None and any(a.prompt for a in actions):
             raise NeoError("this scene has no language field: give the plan's steps a box")
+        check_plan(scene, actions)
         cfg = dataclasses.replace(
             self.edit,
             preview=self.preview,
@@ -84,13 +84,13 @@ class PlanCommand:
                     boxes = plan_boxes(action) or find_boxes(
                         scene, action.prompt, None, self.query, action.type
                     )
-                except NoMatch as e:
+                    child = apply_action(scene, action, boxes, cfg)
+                except NeoError as e:  # NoMatch too
                     self._strip(columns, names)
                     raise NeoError(
                         f"step {k} ({action.label}): {e}; the plan stopped, versions "
                         f"step_0 .. step_{k - 1} are in {self.out}"
                     ) from None
-                child = apply_action(scene, action, boxes, cfg)
                 out = self.out / f"step_{k}"
                 report = functools.partial(_report, write_report, scene, child)
                 save_scene(out, child, extras=report)

@@ -23,6 +23,7 @@ from neoedit.utils.io import (
     output_kind,
     probe_writable,
 )
+from neoedit.utils.userfile import read_data_file
 
 console = Console()
 
@@ -186,10 +187,7 @@ class SimExecuteCommand:
             reachable_first,
         )
 
-        try:
-            raw = json.loads(self.grasp.read_text())
-        except (OSError, ValueError) as e:
-            raise NeoError(f"{self.grasp}: cannot read a grasp: {e}") from None
+        raw = read_data_file(self.grasp, "grasp file")
         grasps = raw if isinstance(raw, list) else [raw]
         if not grasps or not all(isinstance(g, dict) for g in grasps):
             raise NeoError(f"{self.grasp}: expected a grasp or a list of grasps (JSON objects)")

@@ -20,13 +20,11 @@ mapping, or a list) instead of a prompt.
 from __future__ import annotations
 
 import dataclasses
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-import yaml
 from pydantic import BaseModel, ConfigDict, ValidationError, model_validator
 
 from neoedit.edit.inpaint import Inpainter
@@ -34,7 +32,10 @@ from neoedit.edit.relocate import Motion, MoveConfig, move
 from neoedit.edit.remove import RemoveConfig, remove
 from neoedit.errors import NeoError
 from neoedit.geometry import OrientedBox, is_rigid, motion_about
+from neoedit.language.relevancy import split_prompts
 from neoedit.scene import Scene
+from neoedit.utils.userfile import read_data_file
+from neoedit.utils.validate import check_edit_boxes
 
 
 class MotionSpec(BaseModel):
@@ -61,6 +62,8 @@ class MotionSpec(BaseModel):
             raise ValueError("translate_m must be finite")
         if not np.isfinite(self.yaw_deg):
             raise ValueError("yaw_deg must be finite")
+        if abs(self.yaw_deg) > 360.0:
+            raise ValueError(f"yaw_deg is in degrees, within [-360, 360]; got {self.yaw_deg:g}")
         return self
 
     def matrix(self, box: OrientedBox) -> np.ndarray:
@@ -84,6 +87,8 @@ class Action(BaseModel):
     def _consistent(self) -> Action:
         if (self.prompt is None) == (self.box is None):
             raise ValueError("give either prompt or box")
+        if self.prompt is not None and not split_prompts(self.prompt):
+            raise ValueError("the prompt is empty")
         inline = self.translate_m is not None or self.yaw_deg != 0.0 or self.transform is not None
         if self.type == "remove":
             if inline or self.motions:
@@ -93,8 +98,12 @@ class Action(BaseModel):
             raise ValueError("give either motions or one motion, not both")
         if self.motions is not None and not self.motions:
             raise ValueError("motions is empty: give one motion per object")
-        if self.prompt is not None and not self.prompt.strip():
-            raise ValueError("the prompt is empty")
+        objects = self.objects
+        if self.motions is not None and len(self.motions) not in (1, objects):
+            raise ValueError(
+                f"{objects} object(s) but {len(self.motions)} motions: give one motion, or one "
+                "per object"
+            )
         if self.motions is None:
             self.motions = [
                 MotionSpec(
@@ -102,6 +111,13 @@ class Action(BaseModel):
                 )
             ]
         return self
+
+    @property
+    def objects(self) -> int:
+        """How many objects the step edits (one per prompt of ``a; b`` or per box)."""
+        if self.prompt is not None:
+            return len(split_prompts(self.prompt))
+        return len(self.box) if isinstance(self.box, list) else 1
 
     @property
     def label(self) -> str:
@@ -121,27 +137,38 @@ def parse_plan(raw: Any, where: str = "plan") -> list[Action]:
             actions.append(Action.model_validate(item))
         except ValidationError as e:
             err = e.errors()[0]
-            loc = ".".join(str(x) for x in err["loc"]) or "step"
+            loc = ".".join(str(x) for x in err["loc"])
             msg = err["msg"].removeprefix("Value error, ")
-            raise NeoError(f"{where}: step {i}: {loc}: {msg}") from None
+            raise NeoError(f"{where}: step {i}: {loc + ': ' if loc else ''}{msg}") from None
     return actions
+
+
+def check_plan(scene: Scene, actions: list[Action]) -> None:
+    """What can be checked against the starting scene before any step runs: boxes a step
+    gives inside the scene box, translations that stay within its size. A failure names the
+    step."""
+    lo, hi = (np.asarray(v, dtype=np.float64) for v in scene.meta.aabb_m)
+    reach = float(np.linalg.norm(hi - lo))
+    for k, action in enumerate(actions, 1):
+        try:
+            boxes = plan_boxes(action)
+            if boxes is not None:
+                check_edit_boxes(scene, boxes)
+            for m in action.motions or []:
+                shift = float(np.linalg.norm(m.translate_m or (0.0, 0.0, 0.0)))
+                if m.transform is not None:
+                    shift = float(np.linalg.norm(np.asarray(m.transform)[:3, 3]))
+                if shift > reach:
+                    raise NeoError(
+                        f"a move of {shift:.2f} m leaves the scene box ({reach:.2f} m across)"
+                    )
+        except NeoError as e:
+            raise NeoError(f"step {k} ({action.label}): {e}") from None
 
 
 def load_plan(path: Path) -> list[Action]:
     path = Path(path)
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise NeoError(f"plan not found: {path}") from None
-    except OSError as e:
-        raise NeoError(f"{path}: cannot read the plan: {e}") from None
-    try:
-        raw = json.loads(text) if path.suffix == ".json" else yaml.safe_load(text)
-    except (json.JSONDecodeError, yaml.YAMLError) as e:
-        raise NeoError(
-            f"{path}: not valid {'JSON' if path.suffix == '.json' else 'YAML'}: {e}"
-        ) from None
-    return parse_plan(raw, str(path))
+    return parse_plan(read_data_file(path, "plan", yaml_ok=True), str(path))
 
 
 @dataclass

@@ -38,7 +38,7 @@ from neoedit.scene import Scene, load_scene, save_scene
 from neoedit.utils.io import write_png
 from neoedit.utils.validate import check_edit_boxes
 from neoedit.viz.contact_sheet import tile_images
-from neoedit.viz.versions import pick_views, render_versions
+from neoedit.viz.zoom import before_after, edited_boxes, report_views
 
 REMOVAL_MODES = ("resample", "suppress")
 
@@ -251,14 +251,11 @@ def neighbour_points(scene: Scene, box: OrientedBox, cfg: RemoveConfig) -> np.nd
 def write_report(
     report: Path, parent: Scene, child: Scene, strips: list[tuple[int, list[np.ndarray]]]
 ) -> None:
-    """before_after.png (three training views, ~160 px wide, before | after) and virtual_views_round_K.png
-    (rows: rendered, masked, inpainted)."""
+    """before_after.png (two training views, before | after, each beside a zoom on the
+    edited boxes) and virtual_views_round_K.png (rows: rendered, masked, inpainted)."""
     for k, tiles in strips:
         n = len(tiles) // 3
         write_png(report / f"virtual_views_round_{k}.png", tile_images(tiles, cols=n))
-    pick = pick_views(parent, 3, split="train")
-    # a picture, not a measurement: at most ~160 px wide (halves a 320 px scan's cost)
-    rows = render_versions([parent, child], pick, max_width=160)
-    tiles = [tile for row in rows for tile in row]
-    labels = [f"{name} (view {i})" for i in pick for name in ("before", "after")]
-    write_png(report / "before_after.png", tile_images(tiles, cols=2, labels=labels))
+    views = report_views(parent, edited_boxes(child))
+    tiles, labels, cols = before_after(parent, child, views)
+    write_png(report / "before_after.png", tile_images(tiles, cols=cols, labels=labels))

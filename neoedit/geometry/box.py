@@ -6,7 +6,6 @@ Serialised everywhere (objects.json, scene.json, ``neo query`` output) as
 
 from __future__ import annotations
 
-import json
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,6 +17,7 @@ import torch
 
 from neoedit.errors import NeoError
 from neoedit.geometry.transforms import rot_z, wrap_deg, yaw_of_rotation
+from neoedit.utils.userfile import read_data_file
 
 
 def _vec3(values: Any) -> tuple[float, float, float]:
@@ -221,13 +221,7 @@ def box_iou_3d(a: OrientedBox, b: OrientedBox) -> float:
 
 def load_boxes(path: Path) -> list[OrientedBox]:
     """Read one box or a list of boxes from a JSON file (also accepts ``{"box": {...}}``)."""
-    path = Path(path)
-    if not path.is_file():
-        raise NeoError(f"box file not found: {path}")
-    try:
-        data = json.loads(path.read_text())
-    except json.JSONDecodeError as e:
-        raise NeoError(f"{path} is not valid JSON: {e}") from None
+    data = read_data_file(Path(path), "box file")
     items = data if isinstance(data, list) else [data]
     return [OrientedBox.from_dict(d.get("box", d) if isinstance(d, dict) else {}) for d in items]
 

@@ -77,6 +77,11 @@ class QueryConfig:
 
     def check(self) -> None:
         """Refuse values that cannot describe a query (a NeoError naming the option)."""
+        if not self.canonical or not all(str(c).strip() for c in self.canonical):
+            raise NeoError(
+                "--query.canonical needs at least one non-empty phrase (the negatives a match "
+                "must beat, e.g. object things stuff texture)"
+            )
         for name in ("trim", "trim_top"):
             value = getattr(self, name)
             if not 0.0 <= value < 0.5:

@@ -8,7 +8,6 @@ KUKA setup is not supported: pybullet_data's iiwa model has no gripper.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -21,6 +20,7 @@ from neoedit.grasp.gripper import GripperConfig, opening
 from neoedit.sim.arm import ExecuteConfig, Motion, PandaArm
 from neoedit.sim.spec import ActionSpec, SceneSpec
 from neoedit.sim.world import PHYSICS_HZ, SimWorld
+from neoedit.utils.userfile import read_data_file
 
 __all__ = ["ExecuteConfig", "Execution", "PandaArm", "execute_action", "execute_move"]
 
@@ -283,11 +283,10 @@ def _scene_action(scene_dir: Path, action: int) -> tuple[SceneSpec, ActionSpec, 
     scene folder; a clear error for anything else."""
     from neoedit.sim.spec import scene_spec_from_dict
 
-    try:
-        meta = json.loads((Path(scene_dir) / "scene.json").read_text())
-        spec = scene_spec_from_dict(meta["spec"], source=str(scene_dir))
-    except (OSError, ValueError, KeyError) as e:
-        raise NeoError(f"{scene_dir} is not a NEO-Sim scene folder: {e}") from None
+    meta = read_data_file(Path(scene_dir) / "scene.json", "NEO-Sim scene record")
+    if not isinstance(meta, dict) or "spec" not in meta:
+        raise NeoError(f"{scene_dir} is not a NEO-Sim scene folder (scene.json has no 'spec')")
+    spec = scene_spec_from_dict(meta["spec"], source=str(scene_dir))
     if not 1 <= action <= len(spec.actions):
         raise NeoError(f"--action must be in 1..{len(spec.actions)} for {scene_dir}")
     todo = spec.actions[action - 1]

@@ -7,16 +7,16 @@ initial poses, a scan protocol (image size, trajectory) and an ordered list of a
 from __future__ import annotations
 
 import dataclasses
-import json
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
-import yaml
 from pydantic import ConfigDict, TypeAdapter, ValidationError
 
-from neoedit.errors import SpecError
+from neoedit.errors import NeoError, SpecError
 from neoedit.utils.aruco import DICTIONARIES
+from neoedit.utils.userfile import read_data_file
 
 Vec3 = tuple[float, float, float]
 _FORBID_EXTRA = ConfigDict(extra="forbid")  # unknown keys in a spec are errors
@@ -216,9 +216,40 @@ def _check_semantics(spec: SceneSpec, source: str) -> None:
             )
         if a.type == "remove":
             present.discard(a.object)
-    s = spec.scan
-    if s.width < 8 or s.height < 8:
-        raise SpecError(f"{source}: field 'scan.width/height': images must be at least 8x8")
+    _check_scan(spec.scan, source)
+
+
+MAX_SCAN_SIDE = 4096
+"""Largest simulated image side (the renderer's buffers; a 4K scan is already hours)."""
+
+
+def _check_scan(s: ScanSpec, source: str) -> None:
+    for f in dataclasses.fields(s):
+        values = getattr(s, f.name)
+        for v in values if isinstance(values, tuple) else (values,):
+            if not math.isfinite(v):
+                raise SpecError(f"{source}: field 'scan.{f.name}': must be finite, got {v}")
+    if not (8 <= s.width <= MAX_SCAN_SIDE and 8 <= s.height <= MAX_SCAN_SIDE):
+        raise SpecError(
+            f"{source}: field 'scan.width/height': images must be 8 to {MAX_SCAN_SIDE} "
+            f"pixels a side, got {s.width}x{s.height}"
+        )
+    if not (0 <= s.n_eval <= 1000 and s.n_train <= 5000):
+        raise SpecError(f"{source}: field 'scan.n_train/n_eval': at most 5000 / 1000 views")
+    for name in ("radius_m", "eval_radius_m"):
+        if not 0.1 <= getattr(s, name) <= 50:
+            raise SpecError(
+                f"{source}: field 'scan.{name}': the cameras must stand 0.1 to 50 m from the "
+                f"table centre, got {getattr(s, name)}"
+            )
+    elevations = (s.elevation_min_deg, s.elevation_max_deg, s.eval_elevation_deg)
+    if not all(-89 <= e <= 89 for e in elevations) or s.elevation_min_deg > s.elevation_max_deg:
+        raise SpecError(
+            f"{source}: field 'scan.elevation_*_deg': need -89 <= min <= max <= 89 "
+            "(a camera straight above the table has no up direction)"
+        )
+    if s.turns <= 0:
+        raise SpecError(f"{source}: field 'scan.turns': must be > 0")
     if s.n_train < 2:
         raise SpecError(f"{source}: field 'scan.n_train': need at least 2 training views")
     if not 0 < s.fov_y_deg < 170:
@@ -232,11 +263,8 @@ def _check_semantics(spec: SceneSpec, source: str) -> None:
 def load_scene_spec(path: Path) -> SceneSpec:
     """Read a scene spec from ``.yaml``/``.yml``/``.json``."""
     path = Path(path)
-    if not path.is_file():
-        raise SpecError(f"scene spec not found: {path}")
-    text = path.read_text()
     try:
-        data = json.loads(text) if path.suffix == ".json" else yaml.safe_load(text)
-    except (json.JSONDecodeError, yaml.YAMLError) as e:
-        raise SpecError(f"{path}: cannot parse: {e}") from None
+        data = read_data_file(path, "scene spec", yaml_ok=True)
+    except NeoError as e:
+        raise SpecError(str(e)) from None
     return scene_spec_from_dict(data, source=str(path))

@@ -32,7 +32,7 @@ import torch
 
 from neoedit.errors import NeoError
 from neoedit.storage.blobs import decode, encode, get_blob, put_blob
-from neoedit.utils.io import atomic_directory, atomic_write_json
+from neoedit.utils.io import atomic_directory, atomic_write_json, clean_stale_temporaries
 
 FORMAT = "neoedit.store/1"
 MANIFEST = "tensors.json"
@@ -245,6 +245,7 @@ class SceneStore:
         with self.lock():
             if (self.root / name).exists():
                 raise NeoError(f"{self.root / name} already exists: versions are never replaced")
+            self.collect_garbage()
             parent_name = self.name_of_id(meta.get("parent"))
             parent = self.tensors(parent_name) if parent_name is not None else None
             manifest: dict[str, Any] = {
@@ -271,6 +272,32 @@ class SceneStore:
             if make_current:
                 atomic_write_json(self.root / "store.json", {**self._config(), "current": name})
         return stored
+
+    def collect_garbage(self) -> list[Path]:
+        """Remove what killed writers left (their temporary version folders and blob
+        temporaries, and blobs no version references); under the writer lock, so no write is
+        in progress. Nothing is removed when a version's manifest cannot be read. Returns
+        the paths removed."""
+        with self.lock():
+            removed = clean_stale_temporaries(self.root)
+            blobs = self.root / "blobs"
+            removed += clean_stale_temporaries(blobs)
+            referenced = set()
+            for d in self.root.iterdir():
+                if not NAME_RE.match(d.name) or d.name == "blobs" or not d.is_dir():
+                    continue
+                try:
+                    manifest = json.loads((d / MANIFEST).read_text())
+                    referenced |= {g["blob"] for g in manifest["groups"].values()}
+                except FileNotFoundError:
+                    continue  # not a version (a user's folder)
+                except (OSError, ValueError, KeyError, TypeError, AttributeError):
+                    return removed  # a version that cannot be read: keep every blob
+            for blob in blobs.glob("*.st.z") if blobs.is_dir() else ():
+                if blob.name.removesuffix(".st.z") not in referenced:
+                    blob.unlink(missing_ok=True)
+                    removed.append(blob)
+            return removed
 
     def size_bytes(self) -> int:
         """Bytes on disk of the whole store (blobs, manifests, metadata, reports)."""

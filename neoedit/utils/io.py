@@ -171,6 +171,23 @@ def _make_temp_dir(final: Path) -> Path:
 
 
 @contextlib.contextmanager
+def work_directory(final: Path) -> Iterator[Path]:
+    """A scratch folder beside ``final`` for the work that makes it, removed at the end; one a
+    killed process leaves is removed by the next write in that folder (its name holds the
+    pid, as the temporaries of :func:`atomic_directory` do)."""
+    final = Path(final).absolute()
+    final.parent.mkdir(parents=True, exist_ok=True)
+    work = _temp_path(final, "tmp")
+    _ACTIVE.add(str(work))
+    try:
+        work.mkdir(mode=0o700)
+        yield work
+    finally:
+        _remove(work)
+        _ACTIVE.discard(str(work))
+
+
+@contextlib.contextmanager
 def atomic_directory(
     final: Path, overwrite: bool = False, kind: str | None = None
 ) -> Iterator[Path]:
@@ -331,6 +348,18 @@ def _check_not_input(out: Path, inputs: Sequence[Path | None]) -> None:
             raise NeoError(f"{out} holds the input {inp}; replacing it would delete the input")
 
 
+def _check_replaceable(out: Path) -> None:
+    """An existing output folder is replaced by a rename: a mount point cannot be, and a
+    folder that refuses new files (read-only, immutable) is found here, not after the work."""
+    if out.is_dir() and not out.is_symlink():
+        if os.path.ismount(out):
+            raise NeoError(
+                f"{out} is a mount point, which cannot be replaced; write into a new folder "
+                f"inside it (e.g. --out {out / 'result'})"
+            )
+        probe_writable(out)
+
+
 def check_writable_output(
     out: Path,
     inputs: Sequence[Path | None] = (),
@@ -353,6 +382,7 @@ def check_writable_output(
         refuse_foreign(out, kind)
         if not overwrite and not _is_empty_dir(out):
             raise NeoError(f"{out} already exists ({hint})")
+        _check_replaceable(out)
     anchor = _nearest_existing(out.parent)
     if not anchor.is_dir():
         raise NeoError(f"cannot write {out}: {anchor} is not a directory")

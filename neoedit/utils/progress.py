@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import os
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any, TypeVar
 
@@ -62,6 +63,10 @@ def progress_listener(listener: Listener) -> Iterator[None]:
         _LISTENERS.remove(listener)
 
 
+QUIET_ENV = "NEO_QUIET"
+"""Set to 1 (``neo --quiet``): no progress bars (results and errors only)."""
+
+
 def make_progress(transient: bool = False) -> Progress:
     return _ListenedProgress(
         TextColumn("[bold]{task.description}"),
@@ -71,6 +76,7 @@ def make_progress(transient: bool = False) -> Progress:
         TimeRemainingColumn(),
         TextColumn("{task.fields[status]}"),
         transient=transient,
+        disable=os.environ.get(QUIET_ENV) == "1",
     )
 
 

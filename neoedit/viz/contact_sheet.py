@@ -24,7 +24,7 @@ def tile_images(
     cols = cols or math.ceil(math.sqrt(len(images) * h / w))
     rows = math.ceil(len(images) / cols)
     sheet = np.full((rows * (h + pad_px) + pad_px, cols * (w + pad_px) + pad_px, 3), 255, np.uint8)
-    scale = max(0.3, w / 400)
+    scale = max(0.4, w / 250)  # labels readable at 240 px tiles and up
     for k, img in enumerate(images):
         r, c = divmod(k, cols)
         y, x = pad_px + r * (h + pad_px), pad_px + c * (w + pad_px)

@@ -6,9 +6,14 @@ import cv2
 import numpy as np
 
 from neoedit.cameras import Cameras
+from neoedit.geometry import OrientedBox
 from neoedit.grasp.antipodal import Grasp
 from neoedit.grasp.gripper import GripperConfig, box_corners, gripper_boxes
-from neoedit.viz.boxes import BOX_EDGES
+from neoedit.scene import Scene
+from neoedit.viz.boxes import BOX_EDGES, draw_box
+from neoedit.viz.contact_sheet import tile_images
+from neoedit.viz.versions import render_rgb
+from neoedit.viz.zoom import crop_camera, facing_view
 
 RANK_COLOURS = [(40, 220, 40), (250, 210, 30), (250, 140, 30), (230, 60, 60), (200, 60, 200)]
 
@@ -41,10 +46,52 @@ def draw_grasps(
     return out
 
 
-def facing_view(cameras: Cameras, candidates: np.ndarray, point: np.ndarray) -> int:
-    """The camera of ``candidates`` that looks most directly at ``point``."""
-    centres = cameras.camera_to_world[candidates, :3, 3]
-    to_point = point - centres
-    to_point /= np.linalg.norm(to_point, axis=1, keepdims=True)
-    forward = -cameras.camera_to_world[candidates, :3, 2]
-    return int(candidates[int(np.argmax(np.sum(forward * to_point, axis=1)))])
+SHOWN = 3
+"""Grasps drawn in the picture (the best ones; the JSON lists every planned grasp)."""
+
+
+def legend(grasps: list[Grasp], width: int) -> np.ndarray:
+    """A white band, ``width`` px wide: one line per grasp, its rank colour, score, width
+    and approach angle."""
+    line = 26
+    band = np.full((line * len(grasps) + 8, width, 3), 255, np.uint8)
+    for rank, g in enumerate(grasps):
+        y = 6 + rank * line
+        colour = RANK_COLOURS[min(rank, len(RANK_COLOURS) - 1)]
+        cv2.rectangle(band, (8, y + 4), (40, y + line - 6), colour, -1)
+        text = (
+            f"#{rank + 1}: score {g.score:.2f}, grip width {100 * g.width_m:.1f} cm, "
+            f"approach {g.approach_deg:.0f} deg from vertical"
+        )
+        cv2.putText(
+            band, text, (50, y + line - 8), cv2.FONT_HERSHEY_SIMPLEX, 0.55, (0, 0, 0), 1,
+            cv2.LINE_AA,
+        )  # fmt: skip
+    return band
+
+
+def grasp_picture(
+    scene: Scene, box: OrientedBox, grasps: list[Grasp], gripper: GripperConfig, width: int = 320
+) -> np.ndarray:
+    """The view that faces the object (whole, object boxed, best grasps drawn) beside zooms
+    on the object from it and from a third of the scan further on, with a legend: rank
+    colours, scores and widths of the best :data:`SHOWN` grasps."""
+    cameras, _, split = scene.scan_cameras()
+    cameras = cameras.scaled(width / float(np.max(cameras.width)))
+    pool = np.asarray(split.get("train", np.arange(len(cameras))))
+    first = facing_view(cameras, pool, np.asarray(box.center_m))
+    second = int(pool[(list(pool).index(first) + len(pool) // 3) % len(pool)])
+    best = grasps[:SHOWN]
+    full = draw_box(render_rgb(scene, cameras, first), cameras, first, box, (90, 90, 255), 1)
+    tiles = [draw_grasps(full, cameras, first, best, gripper)]
+    labels = [f"view {first}"]
+    reach = box.grown(0.03).corners()  # the object and the finger pads around it
+    for i in (first, second):
+        crop = crop_camera(cameras, i, reach, margin=0.1)
+        if crop is None:
+            continue
+        cam, factor = crop
+        tiles.append(draw_grasps(render_rgb(scene, cam, 0), cam, 0, best, gripper, 2))
+        labels.append(f"view {i}, zoom x{factor:.1f}")
+    sheet = tile_images(tiles, cols=len(tiles), labels=labels)
+    return np.concatenate([sheet, legend(best, sheet.shape[1])], axis=0)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from neoedit.cameras import Cameras
 from neoedit.cameras.rays import CameraTensors
 from neoedit.scene import Scene
 
@@ -21,6 +22,14 @@ def pick_views(scene: Scene, n: int, split: str = "test") -> np.ndarray:
 
 
 @torch.no_grad()
+def render_rgb(scene: Scene, cameras: Cameras, index: int) -> np.ndarray:
+    """uint8 RGB render of camera ``index`` of ``cameras`` through ``scene``."""
+    cams = CameraTensors(cameras.subset([index]), scene.field.aabb.device)
+    h, w = int(cameras.height[index]), int(cameras.width[index])
+    rgb = scene.render_image(cams, 0, h, w)["rgb"].clamp(0, 1).cpu().numpy()
+    return (rgb * 255).round().astype(np.uint8)
+
+
 def render_versions(
     versions: list[Scene], views: np.ndarray, max_width: int = 240
 ) -> list[list[np.ndarray]]:
@@ -28,16 +37,7 @@ def render_versions(
     version (every version of one scene shares its scan), at most ``max_width`` px wide."""
     cameras, _, _ = versions[0].scan_cameras()
     cameras = cameras.scaled(min(1.0, max_width / float(np.max(cameras.width))))
-    cams = CameraTensors(cameras, versions[0].field.aabb.device)
-    rows = []
-    for i in views:
-        h, w = int(cameras.height[i]), int(cameras.width[i])
-        row = []
-        for v in versions:
-            rgb = v.render_image(cams, int(i), h, w)["rgb"].clamp(0, 1).cpu().numpy()
-            row.append((rgb * 255).round().astype(np.uint8))
-        rows.append(row)
-    return rows
+    return [[render_rgb(v, cameras, int(i)) for v in versions] for i in views]
 
 
 def difference_image(a: np.ndarray, b: np.ndarray, scale: float = 4.0) -> np.ndarray:

@@ -1,0 +1,120 @@
+"""Parsing ``neo``'s arguments with tyro, with its error boxes condensed to an ``error:``
+line, at most five suggestions and where to find the help (tyro's own box can list every
+similar option of every verb: thousands of characters for one typo)."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import re
+from typing import Any, get_args
+
+import tyro
+
+MAX_SUGGESTIONS = 5
+_HELP = re.compile(r"(neo\b[\w .-]*?--help)")
+_NOISE = re.compile(r" \(applied to [^)]*\)|Arguments are applied to the directly preceding.*$")
+GROUPS = ("sim", "import")
+"""Verbs with verbs of their own (neo sim scene, neo import colmap)."""
+
+
+def verbs(commands: Any) -> set[str]:
+    """The verb names of a Union of ``tyro.conf.subcommand``-annotated commands."""
+    names = set()
+    for option in get_args(commands):
+        for marker in getattr(option, "__metadata__", ()):
+            name = getattr(marker, "name", None)
+            if isinstance(name, str):
+                names.add(name)
+    return names
+
+
+def verb_of(args: list[str], known: set[str]) -> str:
+    """'neo move' for ['move', 'scene', 'mug', '--out', 'x'] (the command whose help to show;
+    'neo' when the first word is no verb)."""
+    if not args or args[0] not in known:
+        return "neo"
+    words: list[str] = []
+    for a in args:
+        if a.startswith("-") or len(words) == (2 if words[:1] and words[0] in GROUPS else 1):
+            break
+        words.append(a)
+    return " ".join(["neo", *words])
+
+
+def _rows(text: str) -> list[str]:
+    """The lines inside tyro's box: drawn with box characters on a UTF-8 terminal, else a
+    title line and a dashed rule above indented lines (the title is dropped either way)."""
+    rows = []
+    for line in text.splitlines():
+        s = line.strip()
+        if s.startswith(("╭", "╰")):
+            continue
+        rows.append(s.strip("│").strip())
+    if "╭" not in text:
+        while rows and not rows[0]:
+            rows.pop(0)
+        if len(rows) > 1 and _is_rule(rows[1]):
+            rows = rows[2:]
+    return rows
+
+
+def _is_rule(row: str) -> bool:
+    return len(row) >= 3 and set(row) <= {"─", "-"}
+
+
+def _sections(rows: list[str]) -> list[list[str]]:
+    sections: list[list[str]] = [[]]
+    for r in rows:
+        if _is_rule(r):
+            sections.append([])
+        elif r:
+            sections[-1].append(r)
+    return [s for s in sections if s]
+
+
+def condense(text: str, verb: str = "neo") -> str:
+    """tyro's error box -> 'error: ...' plus a suggestion line and a help line (the text
+    as it is when it is not a box)."""
+    sections = _sections(_rows(text))
+    if not sections:
+        return text.strip()
+    lines = ["error: " + _NOISE.sub("", " ".join(sections[0])).strip()]
+    suggestions: list[str] = []
+    help_hint = None
+    for section in sections[1:]:
+        joined = " ".join(section)
+        if section[0].startswith(("Perhaps you meant", "Arguments similar to")):
+            for row in section[1:]:
+                word = row.split()[0]
+                if word.startswith("-") and word not in suggestions:
+                    suggestions.append(word)
+        found = _HELP.search(joined)
+        if found and "helptext" in joined:
+            help_hint = found.group(1)
+    if suggestions:
+        lines.append("  did you mean: " + ", ".join(suggestions[:MAX_SUGGESTIONS]))
+    if help_hint in (None, "neo --help"):
+        help_hint = f"{verb} --help"
+    lines.append(f"  every option: {help_hint}")
+    return "\n".join(lines)
+
+
+def parse(commands: Any, args: list[str], description: str) -> Any:
+    """The parsed command; a parse error prints the condensed message on stderr and exits 2
+    (``--help`` prints tyro's full help and exits 0)."""
+    captured = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(captured):
+            return tyro.cli(commands, prog="neo", args=args, description=description)
+    except SystemExit as e:
+        text = captured.getvalue()
+        if e.code not in (0, None) and text:
+            import sys
+
+            print(condense(text, verb_of(args, verbs(commands))), file=sys.stderr)
+        elif text:
+            import sys
+
+            sys.stderr.write(text)
+        raise

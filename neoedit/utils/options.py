@@ -1,0 +1,135 @@
+"""Range rules for every numeric option of every command, checked in one place before a
+command starts (``neo`` runs :func:`check_options` on the parsed command).
+
+The rules follow the option's name and default, so a new config field is covered without
+registering it: every number finite; a field whose default is >= 0 never negative (unless it
+is a signed quantity by nature: angles, offsets, "auto" sentinels); rates, sizes and counts
+that mean nothing at zero strictly positive; fractions within [0, 1]; and the hard limits of
+:data:`neoedit.utils.validate.BOUNDS`. Command-specific checks (a box inside the scene, a
+prompt that is not empty) still run in the commands.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import re
+import typing
+from typing import Any
+
+from neoedit.errors import NeoError
+from neoedit.utils.validate import BOUNDS
+
+SIGNED = frozenset(
+    {
+        "yaw",
+        "yaw_deg",
+        "azimuth_offset_deg",
+        "elevation_min_deg",
+        "elevation_max_deg",
+        "density_bias",
+        "near_m",  # < 0: from the scene box
+        "radius_m",  # < 0: automatic
+        "depth_loss_weight",  # < 0: automatic
+        "sparsity_loss_weight",  # < 0: automatic
+    }
+)
+"""Numeric options that may be negative although their default is not."""
+
+POSITIVE = frozenset(
+    {
+        "lr",
+        "eps_m",
+        "voxel_m",
+        "image_scale",
+        "rays",
+        "batch",
+        "rays_per_batch",
+        "chunk_rays",
+        "fps",
+        "max_side",
+        "max_image_size",
+        "match_width_px",
+        "max_width_m",
+        "collision_step_m",
+        "opacity_step_m",
+        "min_samples",
+        "span_samples",
+        "iterations",
+        "workers",
+        "downscale",
+        "holdout_every",
+    }
+)
+"""Options for which zero means nothing (a rate, a size, a count of work)."""
+
+_UNIT = re.compile(r"(fraction|quantile|share|decay|opacity|focus|similarity)$")
+
+
+def flag(path: tuple[str, ...]) -> str:
+    """The command-line spelling of a nested option: ('edit', 'distill', 'lr') ->
+    '--edit.distill.lr'."""
+    return "--" + ".".join(p.replace("_", "-") for p in path)
+
+
+def _default(f: dataclasses.Field) -> Any:
+    if f.default is not dataclasses.MISSING:
+        return f.default
+    if f.default_factory is not dataclasses.MISSING:
+        return f.default_factory()
+    return None
+
+
+def _number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _check_number(name: str, value: Any, default: Any, where: str) -> None:
+    if not math.isfinite(value):
+        raise NeoError(f"{where} must be a finite number, got {value}")
+    if name in BOUNDS:
+        lo, hi = BOUNDS[name]
+        if (lo is not None and value < lo) or (hi is not None and value > hi):
+            raise NeoError(
+                f"{where} = {value} is out of range [{'-inf' if lo is None else lo}, "
+                f"{'inf' if hi is None else hi}]"
+            )
+    if name in POSITIVE and value <= 0:
+        raise NeoError(f"{where} must be > 0, got {value}")
+    if _UNIT.search(name) and not 0 <= value <= 1:
+        raise NeoError(f"{where} must be within [0, 1], got {value}")
+    nonnegative = name not in SIGNED and (not _number(default) or default >= 0)
+    if nonnegative and value < 0:
+        raise NeoError(f"{where} must be >= 0, got {value}")
+
+
+def _hints(cls: type) -> dict[str, Any]:
+    try:
+        return typing.get_type_hints(cls, include_extras=True)
+    except Exception:  # noqa: BLE001 -- an unresolvable hint only costs the flag's prefix
+        return {}
+
+
+def _omits_prefix(hint: Any) -> bool:
+    """A nested config whose options are spelt without its name (tyro's OmitArgPrefixes:
+    ``--max-steps``, not ``--train.max-steps``)."""
+    import tyro
+
+    return any(m is tyro.conf.OmitArgPrefixes for m in getattr(hint, "__metadata__", ()))
+
+
+def check_options(cfg: Any, path: tuple[str, ...] = ()) -> None:
+    """Every numeric option of a (nested) config dataclass by the module's rules; tuples of
+    numbers (translations, boxes) only finite. Raises :class:`NeoError` naming the flag."""
+    hints = _hints(type(cfg))
+    for f in dataclasses.fields(cfg):
+        value = getattr(cfg, f.name)
+        here = (*path, f.name)
+        if dataclasses.is_dataclass(value) and not isinstance(value, type):
+            check_options(value, path if _omits_prefix(hints.get(f.name)) else here)
+        elif _number(value):
+            _check_number(f.name, value, _default(f), flag(here))
+        elif isinstance(value, (tuple, list)):
+            for item in value:
+                if _number(item) and not math.isfinite(item):
+                    raise NeoError(f"{flag(here)} must be finite numbers, got {item}")
