@@ -7,7 +7,6 @@ import importlib.util
 from pathlib import Path
 
 import imageio.v3 as iio
-import matplotlib
 import numpy as np
 
 from neoedit.cameras import Cameras, look_at
@@ -45,6 +44,8 @@ def spiral_cameras(cameras: Cameras, n_frames: int) -> Cameras:
 def colorize_depth(depth_m: np.ndarray, lo: float, hi: float) -> np.ndarray:
     """(H,W) metres -> (H,W,3) uint8 with the turbo colour map (0 = no depth: black)."""
     norm = np.clip((depth_m - lo) / max(hi - lo, 1e-6), 0, 1)
+    import matplotlib  # lazy
+
     rgb = matplotlib.colormaps["turbo"](norm)[..., :3]
     rgb[depth_m <= 0] = 0
     return (rgb * 255).round().astype(np.uint8)

@@ -322,6 +322,7 @@ def load_scene(path: Path, device: torch.device | str = "cpu") -> Scene:
     if (path / MANIFEST).is_file() and store is None:
         raise NeoError(f"{path} is a store version outside its store (no store.json beside it)")
     groups = store.tensors(path.name) if store is not None else _read_files(path, meta)
+    check_weights(meta, groups["field"], path / "field.safetensors")  # before any allocation
     scene = Scene.create(meta, device="cpu")
     _apply_groups(scene, groups, path)
     scene.field.to(device)
@@ -335,8 +336,7 @@ def load_scene(path: Path, device: torch.device | str = "cpu") -> Scene:
 def _apply_groups(scene: Scene, groups: dict[str, dict[str, torch.Tensor]], path: Path) -> None:
     """Load the tensor groups into ``scene`` (its field, patches, grid and language field)."""
     meta, tensors = scene.meta, groups["field"]
-    weights = path / "field.safetensors"
-    check_weights(meta, tensors, weights)
+    weights = path / "field.safetensors"  # checked by load_scene before the scene was built
     device = scene.field.aabb.device
     try:
         base = scene.field.base if isinstance(scene.field, PatchedField) else scene.field

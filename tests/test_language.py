@@ -349,7 +349,7 @@ def test_clip_and_dino_backends_end_to_end(trained: Path, sim_root: Path, tmp_pa
     emb = text.encode(["red mug", "duck"])
     assert emb.shape == (2, 16) and torch.allclose(emb.norm(dim=-1), torch.ones(2), atol=1e-5)
     model = CLIPModel.from_pretrained(clip_dir)
-    tok = text.tokenizer(["red mug"], return_tensors="pt")
+    tok = text.model.tokenizer(["red mug"], return_tensors="pt")
     ref = model.get_text_features(**tok)
     ref = ref if torch.is_tensor(ref) else ref.pooler_output
     assert torch.allclose(emb[0], torch.nn.functional.normalize(ref[0], dim=0), atol=1e-5)
@@ -404,3 +404,35 @@ def test_missing_backends_error_clearly(tmp_path: Path):
         load_text_encoder(TextEncoderSpec("clip", str(tmp_path / "nope")))
     with pytest.raises(NeoError, match="unknown text encoder"):
         load_text_encoder(TextEncoderSpec("word2vec"))
+
+
+def test_text_embeddings_persist_across_runs_and_equal_the_model(tmp_path, monkeypatch):
+    """A text embedded once is read back from the cache without loading the model, with the
+    model's numbers; another encoder (other weights) never sees them; the cache can be
+    switched off."""
+    from neoedit.language import text as text_mod
+
+    monkeypatch.setenv("NEOEDIT_CACHE", str(tmp_path / "cache"))
+    text_mod.load_text_encoder.cache_clear()
+    spec = TextEncoderSpec()
+    first = load_text_encoder(spec).encode(["red mug", "duck", "red mug"])
+    model = text_mod.MiniLMTextEncoder(None).encode(["red mug", "duck"])
+    assert torch.equal(first[0], first[2]) and torch.allclose(first[:2], model, atol=1e-6)
+    assert len(list((tmp_path / "cache" / "text").glob("*/*.npy"))) == 2
+
+    def no_model(_spec):
+        raise AssertionError("the model was loaded although every text is cached")
+
+    monkeypatch.setattr(text_mod, "_load_model", no_model)
+    text_mod.load_text_encoder.cache_clear()
+    again = load_text_encoder(spec)
+    assert torch.equal(again.encode(["duck", "red mug"]), first[[1, 0]]) and again.dim == 384
+    other = tmp_path / "other_weights"
+    other.mkdir()
+    text_mod.load_text_encoder.cache_clear()
+    with pytest.raises(AssertionError, match="was loaded"):  # other weights: not these files
+        load_text_encoder(TextEncoderSpec(path=str(other))).encode(["duck"])
+    monkeypatch.setenv(text_mod.NO_CACHE_ENV, "1")
+    text_mod.load_text_encoder.cache_clear()
+    assert load_text_encoder(spec).folder is None
+    text_mod.load_text_encoder.cache_clear()

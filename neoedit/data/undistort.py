@@ -38,6 +38,7 @@ import numpy as np
 
 from neoedit.data.validate import PINHOLE_MODELS, check_intrinsics
 from neoedit.errors import DataError
+from neoedit.utils.cache import cache_dir
 from neoedit.utils.io import write_png
 
 FISHEYE = "OPENCV_FISHEYE"
@@ -211,14 +212,10 @@ def _coverage(map_x: np.ndarray, map_y: np.ndarray, w: int, h: int) -> tuple[np.
 
 def cache_folder() -> Path | None:
     """Where undistorted photos are cached (None when no home folder is known)."""
-    for var in (CACHE_ENV, "NEOEDIT_CACHE"):
-        if os.environ.get(var):
-            return Path(os.environ[var]) / "undistorted"
-    try:
-        base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
-    except RuntimeError:
-        return None
-    return Path(base) / "neoedit" / "undistorted"
+    if os.environ.get(CACHE_ENV):
+        return Path(os.environ[CACHE_ENV]) / "undistorted"
+    root = cache_dir()
+    return None if root is None else root / "undistorted"
 
 
 class Undistorter:

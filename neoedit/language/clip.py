@@ -22,7 +22,10 @@ IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
 
 
-def _check_dir(path: str | Path, what: str) -> Path:
+def check_checkpoint(path: str | Path | None, what: str) -> Path:
+    """A local checkpoint folder (a NeoError naming ``what`` when it is not one)."""
+    if not path:
+        raise NeoError(f"the {what} encoder needs a local checkpoint directory")
     p = Path(path)
     if not (p / "config.json").is_file():
         raise NeoError(f"{what} checkpoint not found: {p} (expected a directory with config.json)")
@@ -50,7 +53,7 @@ def _transformers() -> Any:
 @functools.lru_cache(maxsize=2)
 def load_clip(path: str) -> tuple[Any, Any, tuple[torch.Tensor, torch.Tensor]]:
     """(CLIPModel in eval mode, tokenizer, (mean, std) image normalisation (1,3,1,1))."""
-    p = _check_dir(path, "CLIP")
+    p = check_checkpoint(path, "CLIP")
     tf = _transformers()
     try:
         model = tf.CLIPModel.from_pretrained(str(p), local_files_only=True).eval()
@@ -63,7 +66,7 @@ def load_clip(path: str) -> tuple[Any, Any, tuple[torch.Tensor, torch.Tensor]]:
 @functools.lru_cache(maxsize=2)
 def load_dino(path: str) -> tuple[Any, tuple[torch.Tensor, torch.Tensor]]:
     """(Dinov2Model in eval mode, (mean, std) image normalisation)."""
-    p = _check_dir(path, "DINOv2")
+    p = check_checkpoint(path, "DINOv2")
     tf = _transformers()
     try:
         model = tf.Dinov2Model.from_pretrained(str(p), local_files_only=True).eval()

@@ -24,7 +24,6 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
-from scipy.spatial import ConvexHull, QhullError
 
 from neoedit.geometry.box import OrientedBox
 
@@ -66,6 +65,8 @@ def measure_shape(local: np.ndarray) -> Shape:
 
 
 def _hull_area(xy: np.ndarray) -> float:
+    from scipy.spatial import ConvexHull, QhullError  # lazy
+
     if len(xy) < 3:
         return 0.0
     try:

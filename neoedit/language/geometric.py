@@ -25,8 +25,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import torch
-from scipy.spatial import Delaunay, QhullError, cKDTree
-from sklearn.cluster import DBSCAN
 
 from neoedit.data import SceneData
 from neoedit.errors import NeoError
@@ -179,6 +177,9 @@ def cluster_objects(local: np.ndarray, cfg: GeometricConfig) -> np.ndarray:
     if len(above) < cfg.min_points:
         return labels
     # objects stand on the support: their footprint lies inside the plane's extent
+    from scipy.spatial import Delaunay, QhullError, cKDTree  # lazy: 0.6 s of imports with sklearn
+    from sklearn.cluster import DBSCAN
+
     table_xy = local[on_plane, :2][voxel_thin(local[on_plane, :2], 4 * cfg.voxel_m)]
     try:
         above = above[Delaunay(table_xy).find_simplex(local[above, :2]) >= 0]

@@ -19,7 +19,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import torch
-from sklearn.cluster import DBSCAN
 
 from neoedit.cameras.cameras import Cameras
 from neoedit.errors import NeoError
@@ -230,6 +229,8 @@ def localize(
     )
     if len(sel) < cfg.min_cluster_points:
         raise NoMatch(prompt, best, cfg.threshold, too_few)
+    from sklearn.cluster import DBSCAN  # lazy: half a second of imports
+
     db = DBSCAN(eps=cfg.eps_m, min_samples=cfg.min_samples).fit(points_m[sel])
     labels = db.labels_
     if (labels >= 0).sum() == 0:

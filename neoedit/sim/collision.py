@@ -24,7 +24,8 @@ from pathlib import Path
 import numpy as np
 import pybullet as pb
 
-from neoedit.errors import SpecError
+from neoedit.errors import NeoError, SpecError
+from neoedit.utils.cache import cache_dir as user_cache_dir
 from neoedit.utils.io import atomic_write_bytes
 
 VHACD = {"resolution": 200_000, "concavity": 0.0025, "maxNumVerticesPerCH": 64}
@@ -34,12 +35,11 @@ FORMAT = 2
 
 
 def cache_dir() -> Path:
-    """Where derived assets live: ``$NEOEDIT_CACHE``, else ``$XDG_CACHE_HOME/neoedit``, else
-    ``~/.cache/neoedit``."""
-    if os.environ.get("NEOEDIT_CACHE"):
-        return Path(os.environ["NEOEDIT_CACHE"])
-    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
-    return Path(base) / "neoedit"
+    """Where derived assets live (:func:`neoedit.utils.cache.cache_dir`)."""
+    root = user_cache_dir()
+    if root is None:
+        raise NeoError("no cache folder: set NEOEDIT_CACHE to a writable folder")
+    return root
 
 
 def concave_urdf(urdf: Path) -> Path:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import cv2
-import matplotlib
 import numpy as np
 
 from neoedit.cameras import Cameras
@@ -46,6 +45,8 @@ def relevancy_overlay(
     grey = rgb.mean(-1, keepdims=True).repeat(3, -1) * 0.6
     hi = float(relevancy[valid].max()) if hi is None and valid.any() else (hi or lo + 0.1)
     norm = np.clip((relevancy - lo) / max(hi - lo, 1e-6), 0.0, 1.0)
+    import matplotlib  # lazy
+
     heat = matplotlib.colormaps["turbo"](norm)[..., :3] * 255
     show = valid & (relevancy > lo)
     alpha = (0.35 + 0.65 * norm)[..., None] * show[..., None]
