@@ -1,8 +1,23 @@
 """neoedit: NeRF it once, edit it many times.
 
-Public entry points live in the sub-packages (``neoedit.data``, ``neoedit.sim``, ...);
-the command line is ``neo`` (``neoedit.cli``).
+The Python facade (:mod:`neoedit.api`)::
+
+    import neoedit as neo
+
+    s = neo.load("outputs/demo/scene")
+    s2 = s.remove("red mug")
+    s3 = s2.move("duck", translate=(0.1, 0.0, 0.0))
+    neo.save(s3, "outputs/demo/moved")
+
+The sub-packages hold the rest (``neoedit.data``, ``neoedit.edit``, ``neoedit.sim``, ...);
+the command line is ``neo`` (``neoedit.cli``). Exports load lazily: ``import neoedit``
+does not import torch.
 """
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
 
 from neoedit.errors import NeoError
 from neoedit.utils.threads import set_wait_policy
@@ -10,5 +25,22 @@ from neoedit.utils.threads import set_wait_policy
 # before torch and numba load their OpenMP runtimes (see neoedit.utils.threads)
 set_wait_policy()
 
-__all__ = ["NeoError", "__version__"]
+_EXPORTS = {
+    "load": "neoedit.api",
+    "save": "neoedit.api",
+    "EditableScene": "neoedit.api",
+    "Cameras": "neoedit.cameras",
+    "OrientedBox": "neoedit.geometry",
+    "RemoveConfig": "neoedit.edit.remove",
+    "MoveConfig": "neoedit.edit.relocate",
+    "QueryConfig": "neoedit.language.localize",
+}
+
+__all__ = ["NeoError", "__version__", *sorted(_EXPORTS)]
 __version__ = "0.1.0"
+
+
+def __getattr__(name: str) -> Any:
+    if name in _EXPORTS:
+        return getattr(importlib.import_module(_EXPORTS[name]), name)
+    raise AttributeError(f"module 'neoedit' has no attribute {name!r}")

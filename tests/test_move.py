@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import dataclasses
 import json
 import shutil
 from pathlib import Path
@@ -16,6 +17,7 @@ from hypothesis import strategies as st
 from test_edit import tree_digest
 from test_language import SPARSE  # the tiny scan's sparse cloud: looser clustering
 
+import neoedit as neo
 from neoedit.cameras.rays import CameraTensors
 from neoedit.cli import main
 from neoedit.data import load_scene_data
@@ -27,7 +29,9 @@ from neoedit.edit.language_update import (
     pushed_out_of_footprint,
     update_language,
 )
+from neoedit.edit.refine import RefineConfig
 from neoedit.edit.relocate import Motion, MoveConfig, move
+from neoedit.edit.views import VirtualViewConfig
 from neoedit.errors import NeoError
 from neoedit.fields.composed import ComposedField, TransformedField, moved_field
 from neoedit.fields.patched import PatchedField
@@ -520,3 +524,35 @@ def test_move_distils_both_regions_or_reuses_the_removal_patch(
                 move(parent, [motion], _fast_move_config(reuse_removal_patch=True, **other))
     assert _mean_density(parent, source) > 20 * _mean_density(child, source)
     assert _mean_density(child, target) > 20 * _mean_density(parent, target)
+
+
+# -- the Python facade (import neoedit as neo): the documented example, run --------------
+
+API_QUERY = neo.QueryConfig(min_cluster_points=10, min_samples=4, eps_m=0.03)  # tiny scans
+API_REMOVE = neo.RemoveConfig(
+    refine=RefineConfig(steps=30, rounds=1), views=VirtualViewConfig(turns=1)
+)
+API_MOVE = neo.MoveConfig(remove=API_REMOVE, language=LanguageUpdateConfig(steps=60))
+
+
+def test_the_python_facade_loads_moves_removes_renders_and_saves(move_scene: Path, tmp_path: Path):
+    s = neo.load(move_scene)
+    before = (s.scene.meta.version_id, len(s.scene.meta.edits))
+    (mug,) = s.find("red mug", API_QUERY)
+    s2 = s.move("red mug", translate=(0.08, 0.04, 0.0), cfg=API_MOVE, query=API_QUERY)
+    moved = dataclasses.replace(mug, center_m=tuple(np.add(mug.center_m, (0.08, 0.04, 0.0))))
+    assert _mean_density(s2.scene, moved) > 2 * _mean_density(s.scene, moved)  # it arrived
+    assert (s.scene.meta.version_id, len(s.scene.meta.edits)) == before  # s is unchanged
+    s3 = s2.remove(moved, cfg=API_REMOVE)
+    assert _mean_density(s3.scene, moved) < 0.25 * _mean_density(s2.scene, moved)
+    rgb = s3.render(index=1)
+    cams = s3.cameras
+    assert rgb.dtype == np.uint8 and rgb.shape == (int(cams.height[1]), int(cams.width[1]), 3)
+    out = neo.save(s3, tmp_path / "v3")
+    again = neo.load(out)
+    assert again.scene.meta.version_id == s3.scene.meta.version_id
+    assert [e["type"] for e in again.scene.meta.edits[-2:]] == ["move", "remove"]
+    with pytest.raises(neo.NeoError, match="never overwrites|inside the input|holds the input"):
+        neo.save(s3, move_scene, overwrite=True)  # never over the version it started from
+    with pytest.raises(neo.NeoError, match="camera index"):
+        s3.render(index=10_000)

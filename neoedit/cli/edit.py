@@ -87,23 +87,19 @@ def find_boxes(
     """The boxes an edit works on: from a box file, or one per prompt (``;`` separates
     several) found by the scene's language field."""
     from neoedit.geometry.box import load_boxes
-    from neoedit.language.localize import query_scene
+    from neoedit.language.localize import find_objects
     from neoedit.language.relevancy import split_prompts
-    from neoedit.language.text import load_text_encoder
 
     if box is not None:
         return load_boxes(box)  # remove() / move() check them before any work
-    prompts = split_prompts(prompt or "")
-    if not prompts:
+    if not split_prompts(prompt or ""):
         raise NeoError(f'empty prompt: say which object to {verb}, e.g. "red mug"')
     if scene.meta.language is None:
         raise NeoError("this scene has no language field: pass --box instead of a prompt")
-    text = load_text_encoder(scene.meta.language.text)
     boxes = []
-    for p in prompts:
-        res = query_scene(scene, p, text, query)
+    for res in find_objects(scene, prompt or "", query):
         console.print(
-            f"{escape(repr(p))}: box {json.dumps(res.box.to_dict())} (score {res.score:.3f})"
+            f"{escape(repr(res.prompt))}: box {json.dumps(res.box.to_dict())} (score {res.score:.3f})"
         )
         boxes.append(res.box)
     return boxes

@@ -308,3 +308,19 @@ def query_scene(
     return localize(
         prompt, feats, scene.surface_points_m.cpu().numpy().astype(np.float64), text, cfg
     )
+
+
+def find_objects(scene: Scene, prompt: str, cfg: QueryConfig | None = None) -> list[QueryResult]:
+    """One result per prompt of ``prompt`` (``;`` separates several objects), each found by
+    the scene's language field with the encoder it was trained with. :class:`NoMatch` when a
+    prompt matches nothing."""
+    from neoedit.language.relevancy import split_prompts
+    from neoedit.language.text import load_text_encoder
+
+    prompts = split_prompts(prompt or "")
+    if not prompts:
+        raise NeoError('empty prompt: say which object, e.g. "red mug"')
+    if scene.meta.language is None:
+        raise NeoError("this scene has no language field: give a box instead of a prompt")
+    text = load_text_encoder(scene.meta.language.text)
+    return [query_scene(scene, p, text, cfg) for p in prompts]

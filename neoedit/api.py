@@ -1,0 +1,118 @@
+"""The Python facade: a scene loaded once and edited many times, in a few calls.
+
+    import neoedit as neo
+
+    s = neo.load("outputs/demo/scene")
+    s2 = s.remove("red mug")                          # a new version; s is unchanged
+    s3 = s2.move("duck", translate=(0.1, 0.0, 0.0))
+    rgb = s3.render()                                 # (H, W, 3) uint8, a scan camera
+    neo.save(s3, "outputs/demo/moved")
+
+Each call is the library function the ``neo`` verbs use (:func:`neoedit.edit.remove.remove`,
+:func:`neoedit.edit.relocate.move`, :func:`neoedit.language.localize.find_objects`), with
+their configs as keyword arguments; :attr:`EditableScene.scene` is the underlying
+:class:`neoedit.scene.Scene` for everything else.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from neoedit.cameras import Cameras
+from neoedit.errors import NeoError
+from neoedit.geometry import OrientedBox, motion_about
+from neoedit.scene import Scene
+
+Target = str | OrientedBox | Sequence[OrientedBox]
+"""What an edit works on: a prompt ("red mug", "mug; duck") or boxes."""
+
+
+@dataclass(frozen=True)
+class EditableScene:
+    """A scene version with its edits as methods; every edit returns a new version."""
+
+    scene: Scene
+    source: Path | None = None
+    """The folder the first version was loaded from (a save never writes over it)."""
+
+    def find(self, prompt: str, query=None) -> list[OrientedBox]:
+        """The box of each object ``prompt`` names (``;`` separates several)."""
+        from neoedit.language.localize import find_objects
+
+        return [r.box for r in find_objects(self.scene, prompt, query)]
+
+    def _boxes(self, target: Target, query) -> tuple[list[OrientedBox], str | None]:
+        if isinstance(target, str):
+            return self.find(target, query), target
+        if isinstance(target, OrientedBox):
+            return [target], None
+        boxes = list(target)
+        if not boxes or not all(isinstance(b, OrientedBox) for b in boxes):
+            raise NeoError("give a prompt, a box or a list of boxes")
+        return boxes, None
+
+    def remove(self, target: Target, cfg=None, query=None) -> EditableScene:
+        """The scene without ``target``, what it hid inpainted (``cfg``: a RemoveConfig)."""
+        from neoedit.edit.remove import RemoveConfig, remove
+
+        boxes, prompt = self._boxes(target, query)
+        child, _ = remove(self.scene, boxes, cfg or RemoveConfig(), prompt)
+        return EditableScene(child, self.source)
+
+    def move(
+        self,
+        target: Target,
+        translate: Sequence[float] = (0.0, 0.0, 0.0),
+        yaw_deg: float = 0.0,
+        cfg=None,
+        query=None,
+    ) -> EditableScene:
+        """The scene with ``target`` moved by ``translate`` (world metres) and turned by
+        ``yaw_deg`` about the vertical through its box centre (``cfg``: a MoveConfig)."""
+        from neoedit.edit.relocate import Motion, MoveConfig, move
+
+        boxes, prompt = self._boxes(target, query)
+        shift = np.asarray(translate, dtype=np.float64).reshape(3)
+        motions = [Motion(b, motion_about(np.asarray(b.center_m), shift, yaw_deg)) for b in boxes]
+        return EditableScene(move(self.scene, motions, cfg or MoveConfig(), prompt), self.source)
+
+    def render(self, cameras: Cameras | None = None, index: int = 0) -> np.ndarray:
+        """(H, W, 3) uint8 RGB of camera ``index`` of ``cameras`` (default: the scan's)."""
+        from neoedit.viz.versions import render_rgb
+
+        if cameras is None:
+            cameras = self.scene.scan_cameras()[0]
+        if not 0 <= index < len(cameras):
+            raise NeoError(f"camera index {index} out of range (0..{len(cameras) - 1})")
+        return render_rgb(self.scene, cameras, index)
+
+    @property
+    def cameras(self) -> Cameras:
+        """The cameras of the scan the scene was trained on."""
+        return self.scene.scan_cameras()[0]
+
+
+def load(path: str | Path, device: str = "auto") -> EditableScene:
+    """A scene folder, a store version or a store (its current version)."""
+    from neoedit.scene import load_scene
+    from neoedit.utils.device import resolve_device
+
+    return EditableScene(load_scene(Path(path), resolve_device(device)), Path(path))
+
+
+def save(scene: EditableScene | Scene, out: str | Path, overwrite: bool = False) -> Path:
+    """Write a version to a new folder (or as a new version, inside a store); never over
+    its parent or an input. Returns the folder."""
+    from neoedit.scene import save_scene
+    from neoedit.utils.io import check_writable_output
+
+    core = scene.scene if isinstance(scene, EditableScene) else scene
+    source = scene.source if isinstance(scene, EditableScene) else None
+    out = Path(out)
+    check_writable_output(out, [Path(core.meta.data_path), source], "scene", overwrite)
+    save_scene(out, core)
+    return out
