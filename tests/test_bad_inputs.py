@@ -10,6 +10,8 @@ tiny scene and the folder holding both (also the working directory).
 # ruff: noqa: F811 (the golden fixture is imported and used as an argument)
 from __future__ import annotations
 
+import contextlib
+import io
 import shlex
 import shutil
 from dataclasses import dataclass
@@ -44,6 +46,20 @@ LONG = "x" * 10_000
 
 def write(name: str, content) -> Setup:
     return lambda ws: ws.write(name, content)
+
+
+def neo_first(argv: str) -> Setup:
+    """Run a neo command that must succeed (an earlier output the case then works on)."""
+
+    def apply(ws: Workspace) -> None:
+        from neoedit.cli import main
+
+        args = [a.format(scene=ws.scene, data=ws.data, ws=ws.root) for a in shlex.split(argv)]
+        quiet = contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO())
+        with contextlib.chdir(ws.root), quiet[0], quiet[1]:
+            assert main(args) == 0
+
+    return apply
 
 
 def cameras(**values) -> Setup:
@@ -267,6 +283,8 @@ CASES = [
     C("sim-scene-radius-zero", "sim scene spec.yaml --out s", 2, "'scan.radius_m'", write("spec.yaml", "name: s\nobjects:\n  - {name: mug, urdf: 'pybullet_data:objects/mug.urdf'}\nscan: {radius_m: 0}\n")),
     C("sim-scene-huge-width", "sim scene spec.yaml --out s", 2, "8 to 4096 pixels", write("spec.yaml", "name: s\nobjects:\n  - {name: mug, urdf: 'pybullet_data:objects/mug.urdf'}\nscan: {width: 1000000}\n")),
     C("sim-execute-malformed", "sim execute bad --action 1 --grasp g.json --out e", 2, "not a NEO-Sim scene folder", chain(write("bad/scene.json", [1, 2]), write("g.json", {"position_m": [0, 0, 0.1], "rotation": np.eye(3).tolist(), "width_m": 0.05}))),
+    C("render-overwrite-keeps-user-file", "render {scene} --out r --views eval --overwrite", 2, "holds files neoedit did not write (images/mine.txt)", chain(neo_first("render {scene} --out r --views eval"), write("r/images/mine.txt", "my notes"))),
+    C("remove-overwrite-keeps-user-file", "remove {scene} --box mug.json --out v --no-inpaint --overwrite", 2, "holds files neoedit did not write (notes.txt)", chain(MUG, neo_first("remove {scene} --box mug.json --out v --no-inpaint"), write("v/notes.txt", "mine"))),
     # 16. a render never overwrites its own outputs
     C("render-cameras-named-transforms", "render {scene} --cameras cams.json --out r", 2, "would overwrite the render's own transforms.json", cameras_frame(file_path="transforms.json")),
     C("render-cameras-under-depth", "render {scene} --cameras cams.json --out r", 2, "would overwrite the render's own depth", cameras_frame(file_path="depth/x.png")),

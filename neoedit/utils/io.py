@@ -30,12 +30,13 @@ import numpy as np
 
 from neoedit.errors import NeoError
 from neoedit.utils.durable import exchange, fsync_dir, seal_tree
+from neoedit.utils.written import LIST, record_files, refuse_foreign_files
 
 TAG = "neoedit"
 MARKER = ".neoedit-output.json"
 """Marks a folder as a neoedit output (renders, evaluation images, query pictures)."""
 MARKER_FORMAT = "neoedit.output/1"
-PROTECTED_JSON = {"transforms.json", "scene.json", "objects.json", "suite.json", MARKER}
+PROTECTED_JSON = {"transforms.json", "scene.json", "objects.json", "suite.json", MARKER, LIST}
 PROTECTED_JSON |= {"store.json", "tensors.json"}
 PROTECTED_JSON |= {f"transforms_{s}.json" for s in ("train", "val", "test")}
 _TEMP_RE = re.compile(
@@ -205,6 +206,7 @@ def atomic_directory(
                 f"output directory already exists: {final} (pass --overwrite to replace it)"
             )
         refuse_foreign(final, kind)
+        refuse_foreign_files(final)
     final.parent.mkdir(parents=True, exist_ok=True)
     clean_stale_temporaries(final.parent, final.name)
     tmp = _make_temp_dir(final)
@@ -212,6 +214,7 @@ def atomic_directory(
         yield tmp
         if kind is not None and kind not in ("scene", "sim"):
             mark_output(tmp, kind)
+        record_files(tmp)
         _publish(tmp, final)
     except BaseException:
         _remove(tmp)
@@ -383,6 +386,8 @@ def check_writable_output(
         if not overwrite and not _is_empty_dir(out):
             raise NeoError(f"{out} already exists ({hint})")
         _check_replaceable(out)
+        if out.is_dir():
+            refuse_foreign_files(out)
     anchor = _nearest_existing(out.parent)
     if not anchor.is_dir():
         raise NeoError(f"cannot write {out}: {anchor} is not a directory")
