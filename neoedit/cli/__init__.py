@@ -96,6 +96,7 @@ def quiet_third_party() -> None:
     os.environ.setdefault("TRANSFORMERS_VERBOSITY", "error")
     os.environ.setdefault("DIFFUSERS_VERBOSITY", "error")
     os.environ.setdefault("TOKENIZERS_PARALLELISM", "false")
+    os.environ.setdefault("NEO_QUIET_THIRD_PARTY", "1")  # e.g. pybullet's load banner
 
 
 def main(argv: Sequence[str] | None = None) -> int:

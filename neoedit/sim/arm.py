@@ -9,9 +9,9 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
-import pybullet as pb
 
 from neoedit.errors import NeoError
+from neoedit.sim._pybullet import pb
 from neoedit.sim.world import PHYSICS_HZ, SimWorld, _matrix_to_quaternion
 
 EE_LINK = "panda_grasptarget"

@@ -16,9 +16,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pybullet as pb
 
 from neoedit.cameras import look_at
+from neoedit.sim._pybullet import pb
 from neoedit.sim.world import resolve_asset
 from neoedit.utils.io import atomic_write_json, write_png
 from neoedit.utils.progress import track

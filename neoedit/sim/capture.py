@@ -6,9 +6,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pybullet as pb
 
 from neoedit.cameras import Cameras
+from neoedit.sim._pybullet import pb
 from neoedit.sim.spec import ScanSpec
 from neoedit.sim.trajectory import eval_ring_poses, intrinsics, spiral_poses
 from neoedit.sim.world import BACKGROUND_ID, ROBOT_ID, TABLE_ID, SimWorld

@@ -22,9 +22,9 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
-import pybullet as pb
 
 from neoedit.errors import NeoError, SpecError
+from neoedit.sim._pybullet import pb
 from neoedit.utils.cache import cache_dir as user_cache_dir
 from neoedit.utils.io import atomic_write_bytes
 

@@ -13,10 +13,10 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
-import pybullet as pb
 
 from neoedit.errors import NeoError
 from neoedit.grasp.gripper import GripperConfig, opening
+from neoedit.sim._pybullet import pb
 from neoedit.sim.arm import ExecuteConfig, Motion, PandaArm
 from neoedit.sim.spec import ActionSpec, SceneSpec
 from neoedit.sim.world import PHYSICS_HZ, SimWorld

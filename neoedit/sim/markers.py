@@ -11,9 +11,9 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
-import pybullet as pb
 
 from neoedit.geometry.transforms import rot_z
+from neoedit.sim._pybullet import pb
 from neoedit.sim.spec import MarkerSpec
 from neoedit.utils.aruco import aruco_dictionary
 

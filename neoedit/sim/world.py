@@ -10,13 +10,13 @@ import functools
 from pathlib import Path
 
 import numpy as np
-import pybullet as pb
 import pybullet_data
 from scipy.spatial.transform import Rotation
 
 from neoedit.errors import SpecError
 from neoedit.geometry import OrientedBox, rot_z, yaw_of_rotation
 from neoedit.geometry.transforms import apply_transform, make_transform
+from neoedit.sim._pybullet import pb
 from neoedit.sim.collision import concave_urdf, obj_parts
 from neoedit.sim.markers import add_markers
 from neoedit.sim.spec import ActionSpec, ObjectSpec, SceneSpec
