@@ -36,6 +36,7 @@ from neoedit.cameras.rays import CameraTensors
 from neoedit.data.scan import ScanCameras, dataset_cameras, scan_from_record
 from neoedit.errors import NeoError
 from neoedit.fields.background import Background
+from neoedit.fields.checks import check_finite, check_language, check_weights
 from neoedit.fields.composed import moved_field
 from neoedit.fields.language import LanguageField, LanguageFieldConfig, TextEncoderSpec
 from neoedit.fields.patched import PatchedField
@@ -44,11 +45,11 @@ from neoedit.fields.suppressed import with_removals
 from neoedit.geometry import OrientedBox
 from neoedit.rendering.occupancy import OccupancyGrid, OccupancyGridConfig
 from neoedit.rendering.renderer import RenderConfig, render_image
+from neoedit.scene_checks import check_scene_meta
 from neoedit.storage import find_store, resolve_scene_dir
 from neoedit.storage.store import MANIFEST
 from neoedit.utils.io import atomic_directory, atomic_write_json
 from neoedit.utils.optim import optimizer_tensors
-from neoedit.utils.validate import check_finite, check_language, check_scene_meta, check_weights
 
 FORMAT = "neoedit.scene/1"
 

@@ -37,7 +37,7 @@ from neoedit.geometry import OrientedBox, points_in_boxes
 from neoedit.geometry.masks import box_pixels
 from neoedit.rendering.occupancy import OccupancyGrid
 from neoedit.rendering.renderer import RenderConfig, render_rays, sample_rays
-from neoedit.training.loop import fit
+from neoedit.utils.fit import fit
 from neoedit.utils.optim import field_param_groups, make_adam
 from neoedit.utils.progress import make_progress
 

@@ -28,6 +28,7 @@ import torch
 
 from neoedit.data import SceneData
 from neoedit.data.sparse_depth import is_sparse
+from neoedit.edit.checks import check_edit_boxes
 from neoedit.edit.history import new_version
 from neoedit.edit.inpaint import Inpainter, inpaint_views, make_inpainter
 from neoedit.edit.language_update import LanguageEdit, update_language
@@ -40,7 +41,6 @@ from neoedit.geometry.masks import masks_for_boxes
 from neoedit.scene import Scene
 from neoedit.training.trainer import TrainConfig, Trainer, psnr
 from neoedit.utils.progress import make_progress
-from neoedit.utils.validate import check_edit_boxes
 
 Window = tuple[slice, slice]
 

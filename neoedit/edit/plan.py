@@ -27,6 +27,7 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, ValidationError, model_validator
 
+from neoedit.edit.checks import check_edit_boxes
 from neoedit.edit.inpaint import Inpainter
 from neoedit.edit.relocate import Motion, MoveConfig, move
 from neoedit.edit.remove import RemoveConfig, remove
@@ -35,7 +36,6 @@ from neoedit.geometry import OrientedBox, is_rigid, motion_about
 from neoedit.language.relevancy import split_prompts
 from neoedit.scene import Scene
 from neoedit.utils.userfile import read_data_file
-from neoedit.utils.validate import check_edit_boxes
 
 
 class MotionSpec(BaseModel):

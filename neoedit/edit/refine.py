@@ -44,7 +44,7 @@ from neoedit.geometry.masks import project_box_mask
 from neoedit.rendering.occupancy import cells_in_boxes, refresh_grid
 from neoedit.rendering.renderer import render_chunked
 from neoedit.scene import Scene
-from neoedit.training.loop import fit
+from neoedit.utils.fit import fit
 from neoedit.utils.optim import field_param_groups, make_adam
 from neoedit.utils.progress import make_progress
 

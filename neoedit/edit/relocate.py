@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from neoedit.edit.checks import check_edit_boxes
 from neoedit.edit.distill import DistillConfig, RayPool, distill
 from neoedit.edit.history import new_version
 from neoedit.edit.inpaint import Inpainter
@@ -45,7 +46,6 @@ from neoedit.geometry import OrientedBox, is_rigid
 from neoedit.geometry.box import box_iou_3d
 from neoedit.rendering.occupancy import OccupancyGrid, cells_in_boxes, refresh_grid
 from neoedit.scene import Scene
-from neoedit.utils.validate import check_edit_boxes
 
 METHODS = ("neo", "seal3d")
 STUDENTS = ("patch", "field")

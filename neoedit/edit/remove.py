@@ -23,6 +23,7 @@ import numpy as np
 import torch
 
 from neoedit.cameras import Cameras
+from neoedit.edit.checks import check_edit_boxes
 from neoedit.edit.history import check_output, new_version
 from neoedit.edit.inpaint import Inpainter, make_inpainter
 from neoedit.edit.language_update import LanguageEdit, update_language
@@ -36,7 +37,6 @@ from neoedit.geometry import OrientedBox
 from neoedit.rendering.occupancy import cells_in_boxes, refresh_grid
 from neoedit.scene import Scene, load_scene, save_scene
 from neoedit.utils.io import write_png
-from neoedit.utils.validate import check_edit_boxes
 from neoedit.viz.contact_sheet import tile_images
 from neoedit.viz.zoom import before_after, edited_boxes, report_views
 

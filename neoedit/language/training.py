@@ -28,7 +28,7 @@ from neoedit.language.teachers import CLIPTeacher, DinoTeacher, LabelTeacher, Te
 from neoedit.language.text import TextEncoderSpec, load_text_encoder
 from neoedit.rendering.surface import render_surface
 from neoedit.scene import LanguageMeta, Scene
-from neoedit.training.loop import fit
+from neoedit.utils.fit import fit
 from neoedit.utils.optim import make_adam
 
 

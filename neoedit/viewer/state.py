@@ -25,6 +25,7 @@ from typing import Any, Literal
 import numpy as np
 import torch
 
+from neoedit.edit.checks import check_edit_boxes
 from neoedit.edit.relocate import Motion, MoveConfig, check_motions
 from neoedit.edit.remove import RemoveConfig, working_boxes
 from neoedit.errors import NeoError
@@ -35,7 +36,6 @@ from neoedit.rendering.occupancy import cells_in_boxes, refresh_grid
 from neoedit.scene import Scene, load_scene, read_scene_meta
 from neoedit.storage import SceneStore, find_store, is_store
 from neoedit.storage.store import MANIFEST
-from neoedit.utils.validate import check_edit_boxes
 from neoedit.viewer.render_loop import RenderLoopConfig
 from neoedit.viewer.versions import VersionEntry, commit_edit, plain_entries, store_entries
 from neoedit.viewer.view import ScanView, render_display, scan_views
