@@ -105,7 +105,7 @@ def test_moving_renders_low_resolution_and_still_refines_to_full():
             serial = loop.update(ViewRequest(_pose(k), 1.0, W, H), moving=True)
             time.sleep(0.01)
         last = frames.wait(lambda f: f.serial == serial)
-        time.sleep(0.3)
+        assert loop.wait_idle(20)  # every moving frame rendered; waiting to be still
         assert frames.frames and not any(f.full for f in frames.frames)
         assert (last.width, last.height) == low_resolution(W, H, RATE, loop.cfg)
         assert last.width < W and last.rgb.shape == (last.height, last.width, 3)
@@ -115,7 +115,7 @@ def test_moving_renders_low_resolution_and_still_refines_to_full():
         assert (full.width, full.height, full.serial) == (W, H, serial)
         assert sizes[-1] == (W, H)
         n = len(sizes)
-        time.sleep(0.3)
+        assert loop.wait_idle(20)
         assert len(sizes) == n  # refined once, then idle
         # new content (another version) with the same camera: low resolution, then refined
         serial = loop.refresh()

@@ -111,6 +111,7 @@ class RenderLoop:
         self._full_done = 0  # serial whose full-resolution frame was rendered (or failed)
         self._refining: int | None = None  # serial of the refinement running now
         self._stopped = False
+        self._idle = False  # the thread waits with nothing it could render now
         self._rays_per_s = float(self.cfg.initial_rays_per_s)
         self.interrupted = 0
         """Refinements abandoned because the view changed."""
@@ -127,6 +128,7 @@ class RenderLoop:
         with self._cond:
             self._request = request
             self._serial += 1
+            self._idle = False
             if moving:
                 self._moved_at = self._clock()
             self._cond.notify_all()
@@ -136,6 +138,7 @@ class RenderLoop:
         """Same camera, new content (another version, a preview, a display setting)."""
         with self._cond:
             self._serial += 1
+            self._idle = False
             self._cond.notify_all()
             return self._serial
 
@@ -151,6 +154,12 @@ class RenderLoop:
             self._cond.notify_all()
         if self._thread.is_alive() and threading.current_thread() is not self._thread:
             self._thread.join(timeout)
+
+    def wait_idle(self, timeout: float = 30.0) -> bool:
+        """Block until the loop has rendered everything it can now (it waits for a new
+        camera, or for the camera to be still long enough to refine); False on timeout."""
+        with self._cond:
+            return self._cond.wait_for(lambda: self._idle or self._stopped, timeout)
 
     @property
     def serial(self) -> int:
@@ -177,10 +186,16 @@ class RenderLoop:
                         self._full_done = serial
                         self._refining = serial
                         return serial, req, True
-                    self._cond.wait(min(wait_s, 0.1))  # re-read the clock (it may be a test's)
+                    self._wait(min(wait_s, 0.1))  # re-read the clock (it may be a test's)
                     continue
-                self._cond.wait()
+                self._wait(None)
             return None
+
+    def _wait(self, timeout: float | None) -> None:
+        """Wait for work (the lock held), telling :meth:`wait_idle` the loop is idle."""
+        self._idle = True
+        self._cond.notify_all()
+        self._cond.wait(timeout)
 
     def _run(self) -> None:
         apply_thread_budget()
