@@ -28,22 +28,21 @@ def tile_images(
     for k, img in enumerate(images):
         r, c = divmod(k, cols)
         y, x = pad_px + r * (h + pad_px), pad_px + c * (w + pad_px)
-        tile = np.ascontiguousarray(img[..., :3])
+        tile = np.array(img[..., :3], dtype=np.uint8)  # a copy: the label never marks the input
         if labels is not None:
-            for colour, thickness in (((0, 0, 0), 2), ((255, 255, 255), 1)):  # outlined text
-                org = (3, int(14 * scale) + 2)
-                cv2.putText(
-                    tile,
-                    labels[k],
-                    org,
-                    cv2.FONT_HERSHEY_SIMPLEX,
-                    0.45 * scale,
-                    colour,
-                    thickness,
-                    cv2.LINE_AA,
-                )
+            _label(tile, labels[k], scale)
         sheet[y : y + h, x : x + w] = tile
     return sheet
+
+
+def _label(tile: np.ndarray, text: str, scale: float) -> None:
+    """White text on a dark band in the tile's top-left corner (readable on any render)."""
+    font, size = cv2.FONT_HERSHEY_SIMPLEX, 0.45 * scale
+    (tw, th), base = cv2.getTextSize(text, font, size, 1)
+    pad = max(2, int(3 * scale))
+    y1, x1 = min(th + base + 2 * pad, tile.shape[0]), min(tw + 2 * pad, tile.shape[1])
+    tile[:y1, :x1] = (tile[:y1, :x1] * 0.35).astype(np.uint8)
+    cv2.putText(tile, text, (pad, pad + th), font, size, (255, 255, 255), 1, cv2.LINE_AA)
 
 
 def write_contact_sheet(

@@ -92,6 +92,6 @@ def grasp_picture(
             continue
         cam, factor = crop
         tiles.append(draw_grasps(render_rgb(scene, cam, 0), cam, 0, best, gripper, 2))
-        labels.append(f"view {i}, zoom x{factor:.1f}")
+        labels.append(f"view {i}, zoom {factor:.1f}x")
     sheet = tile_images(tiles, cols=len(tiles), labels=labels)
     return np.concatenate([sheet, legend(best, sheet.shape[1])], axis=0)

@@ -91,7 +91,8 @@ def before_after(
     the edited boxes outlined) and, when the edit has boxes, before | after zoomed on them;
     with the number of columns."""
     cameras, _, _ = parent.scan_cameras()
-    cameras = cameras.scaled(min(1.0, width / float(np.max(cameras.width))))
+    # small scans render larger (up to 2x: the demo's 128 px scan fills the 240 px tiles)
+    cameras = cameras.scaled(min(2.0, width / float(np.max(cameras.width))))
     boxes = edited_boxes(child)
     corners = np.concatenate([b.corners() for b in boxes]) if boxes else None
     tiles, labels = [], []
@@ -105,5 +106,5 @@ def before_after(
         if crop is not None:
             cam, factor = crop
             tiles += [render_rgb(s, cam, 0) for s in (parent, child)]
-            labels += [f"before, zoom x{factor:.1f}", f"after, zoom x{factor:.1f}"]
+            labels += [f"before, zoom {factor:.1f}x", f"after, zoom {factor:.1f}x"]
     return tiles, labels, 4 if corners is not None else 2
