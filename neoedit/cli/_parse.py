@@ -7,6 +7,7 @@ from __future__ import annotations
 import contextlib
 import io
 import re
+import sys
 from typing import Any, get_args
 
 import tyro
@@ -102,19 +103,15 @@ def condense(text: str, verb: str = "neo") -> str:
 
 def parse(commands: Any, args: list[str], description: str) -> Any:
     """The parsed command; a parse error prints the condensed message on stderr and exits 2
-    (``--help`` prints tyro's full help and exits 0)."""
+    (``--help`` prints tyro's full help and exits 0; anything else tyro says is passed on)."""
     captured = io.StringIO()
     try:
         with contextlib.redirect_stderr(captured):
             return tyro.cli(commands, prog="neo", args=args, description=description)
     except SystemExit as e:
-        text = captured.getvalue()
-        if e.code not in (0, None) and text:
-            import sys
-
-            print(condense(text, verb_of(args, verbs(commands))), file=sys.stderr)
-        elif text:
-            import sys
-
-            sys.stderr.write(text)
+        if e.code not in (0, None) and captured.getvalue():
+            print(condense(captured.getvalue(), verb_of(args, verbs(commands))), file=sys.stderr)
+            captured = io.StringIO()  # said, condensed
         raise
+    finally:
+        sys.stderr.write(captured.getvalue())

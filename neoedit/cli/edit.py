@@ -54,7 +54,7 @@ class RemoveCommand:
             scene = start_edit(
                 self.scene, self.out, self.prompt, self.box, self.overwrite, self.device
             )
-            boxes = find_boxes(scene, self.prompt, self.box, self.query, "remove")
+            boxes = find_boxes(scene, self.prompt, self.box, self.query)
             child, strips = remove(scene, boxes, self.edit, self.prompt)
             save_scene(
                 self.out, child, extras=lambda d: write_report(d / "report", scene, child, strips)
@@ -82,20 +82,15 @@ def start_edit(
 
 
 def find_boxes(
-    scene: Scene, prompt: str | None, box: Path | None, query: QueryConfig, verb: str
+    scene: Scene, prompt: str | None, box: Path | None, query: QueryConfig
 ) -> list[OrientedBox]:
     """The boxes an edit works on: from a box file, or one per prompt (``;`` separates
     several) found by the scene's language field."""
     from neoedit.geometry.box import load_boxes
     from neoedit.language.localize import find_objects
-    from neoedit.language.relevancy import split_prompts
 
     if box is not None:
         return load_boxes(box)  # remove() / move() check them before any work
-    if not split_prompts(prompt or ""):
-        raise NeoError(f'empty prompt: say which object to {verb}, e.g. "red mug"')
-    if scene.meta.language is None:
-        raise NeoError("this scene has no language field: pass --box instead of a prompt")
     boxes = []
     for res in find_objects(scene, prompt or "", query):
         console.print(
@@ -151,7 +146,7 @@ class MoveCommand:
             scene = start_edit(
                 self.scene, self.out, self.prompt, self.box, self.overwrite, self.device
             )
-            boxes = find_boxes(scene, self.prompt, self.box, self.query, "move")
+            boxes = find_boxes(scene, self.prompt, self.box, self.query)
             motions = [Motion(b, motion_for(b, transform)) for b in boxes]
             cfg = dataclasses.replace(self.edit, method=self.method, preview=self.preview)
             child = move(scene, motions, cfg, self.prompt)

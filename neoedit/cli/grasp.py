@@ -73,7 +73,7 @@ class GraspCommand:
         if self.json is not None:
             check_writable_output(self.json, [self.scene, self.box], "json", self.overwrite)
         scene = load_scene(self.scene, resolve_device(self.device))
-        box = find_boxes(scene, self.prompt, self.box, self.query, "grasp")[0]
+        box = find_boxes(scene, self.prompt, self.box, self.query)[0]
         cfg = self.grasp
         if scene.meta.language is not None:  # the scan's up axis (z in NEO-Sim)
             x, y, z = (float(v) for v in scene.meta.language.up)

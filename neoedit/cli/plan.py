@@ -81,9 +81,7 @@ class PlanCommand:
             save_scene(self.out / "step_0", scene)
             for k, action in enumerate(actions, 1):
                 try:
-                    boxes = plan_boxes(action) or find_boxes(
-                        scene, action.prompt, None, self.query, action.type
-                    )
+                    boxes = plan_boxes(action) or find_boxes(scene, action.prompt, None, self.query)
                     child = apply_action(scene, action, boxes, cfg)
                 except NeoError as e:  # NoMatch too
                     self._strip(columns, names)

@@ -321,6 +321,6 @@ def find_objects(scene: Scene, prompt: str, cfg: QueryConfig | None = None) -> l
     if not prompts:
         raise NeoError('empty prompt: say which object, e.g. "red mug"')
     if scene.meta.language is None:
-        raise NeoError("this scene has no language field: give a box instead of a prompt")
+        raise NeoError("this scene has no language field: give a box instead of a prompt (--box)")
     text = load_text_encoder(scene.meta.language.text)
     return [query_scene(scene, p, text, cfg) for p in prompts]

@@ -163,7 +163,9 @@ class CachedTextEncoder:
         found: dict[str, np.ndarray] = {}
         for t in dict.fromkeys(texts):
             with contextlib.suppress(OSError, ValueError):
-                found[t] = np.load(self._file(t), allow_pickle=False)
+                e = np.load(self._file(t), allow_pickle=False)
+                if e.ndim == 1 and e.dtype == np.float32:  # else damaged: embedded again
+                    found[t] = e
         missing = [t for t in dict.fromkeys(texts) if t not in found]
         if missing:
             emb = self.model.encode(missing).numpy().astype(np.float32)

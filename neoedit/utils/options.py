@@ -18,7 +18,7 @@ import typing
 from typing import Any
 
 from neoedit.errors import NeoError
-from neoedit.utils.validate import BOUNDS
+from neoedit.utils.validate import check_bound
 
 SIGNED = frozenset(
     {
@@ -87,13 +87,7 @@ def _number(value: Any) -> bool:
 def _check_number(name: str, value: Any, default: Any, where: str) -> None:
     if not math.isfinite(value):
         raise NeoError(f"{where} must be a finite number, got {value}")
-    if name in BOUNDS:
-        lo, hi = BOUNDS[name]
-        if (lo is not None and value < lo) or (hi is not None and value > hi):
-            raise NeoError(
-                f"{where} = {value} is out of range [{'-inf' if lo is None else lo}, "
-                f"{'inf' if hi is None else hi}]"
-            )
+    check_bound(name, value, where)
     if name in POSITIVE and value <= 0:
         raise NeoError(f"{where} must be > 0, got {value}")
     if _UNIT.search(name) and not 0 <= value <= 1:

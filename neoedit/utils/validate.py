@@ -97,6 +97,18 @@ def finite_number(value: Any) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
+def check_bound(field: str, value: float, where: str) -> None:
+    """``value`` of a field named ``field`` within its :data:`BOUNDS` (when it has any)."""
+    if field not in BOUNDS:
+        return
+    lo, hi = BOUNDS[field]
+    if (lo is not None and value < lo) or (hi is not None and value > hi):
+        raise NeoError(
+            f"{where} = {value} is out of range [{'-inf' if lo is None else lo}, "
+            f"{'inf' if hi is None else hi}]"
+        )
+
+
 def check_config(cfg: Any, where: str) -> None:
     """Every numeric field of a config dataclass (nested ones too) finite and within
     :data:`BOUNDS`; integer fields whole numbers."""
@@ -112,12 +124,7 @@ def check_config(cfg: Any, where: str) -> None:
             continue
         if not finite_number(value):
             raise NeoError(f"{name} must be a finite number, got {shorten(value)!r}")
-        lo, hi = BOUNDS[f.name]
-        if (lo is not None and value < lo) or (hi is not None and value > hi):
-            raise NeoError(
-                f"{name} = {value} is out of range [{'-inf' if lo is None else lo}, "
-                f"{'inf' if hi is None else hi}]"
-            )
+        check_bound(f.name, value, name)
     if getattr(cfg, "backend", "auto") not in ("auto", "numba", "torch"):
         raise NeoError(
             f"{where}.backend must be auto, numba or torch, got {shorten(cfg.backend)!r}"

@@ -13,7 +13,7 @@ from neoedit.scene import Scene
 from neoedit.viz.boxes import BOX_EDGES, draw_box
 from neoedit.viz.contact_sheet import tile_images
 from neoedit.viz.versions import render_rgb
-from neoedit.viz.zoom import crop_camera, facing_view
+from neoedit.viz.zoom import crop_camera, report_views
 
 RANK_COLOURS = [(40, 220, 40), (250, 210, 30), (250, 140, 30), (230, 60, 60), (200, 60, 200)]
 
@@ -76,17 +76,16 @@ def grasp_picture(
     """The view that faces the object (whole, object boxed, best grasps drawn) beside zooms
     on the object from it and from a third of the scan further on, with a legend: rank
     colours, scores and widths of the best :data:`SHOWN` grasps."""
-    cameras, _, split = scene.scan_cameras()
+    cameras = scene.scan_cameras()[0]
     cameras = cameras.scaled(width / float(np.max(cameras.width)))
-    pool = np.asarray(split.get("train", np.arange(len(cameras))))
-    first = facing_view(cameras, pool, np.asarray(box.center_m))
-    second = int(pool[(list(pool).index(first) + len(pool) // 3) % len(pool)])
+    views = [int(v) for v in report_views(scene, [box])]
+    first = views[0]
     best = grasps[:SHOWN]
     full = draw_box(render_rgb(scene, cameras, first), cameras, first, box, (90, 90, 255), 1)
     tiles = [draw_grasps(full, cameras, first, best, gripper)]
     labels = [f"view {first}"]
     reach = box.grown(0.03).corners()  # the object and the finger pads around it
-    for i in (first, second):
+    for i in dict.fromkeys(views):  # one zoom per view (a one-view scan: one)
         crop = crop_camera(cameras, i, reach, margin=0.1)
         if crop is None:
             continue
