@@ -126,8 +126,8 @@ class Scene:
 
     @property
     def background(self) -> Background:
-        """The learned environment map of the field when it has one, else the constant
-        background colour (3,)."""
+        """What rays meet outside the box: the field's room or learned environment map when
+        it has one, else the constant background colour (3,)."""
         base = self.field.base if isinstance(self.field, PatchedField) else self.field
         head = getattr(base, "background_head", None)
         if head is not None:

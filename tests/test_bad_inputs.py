@@ -240,7 +240,9 @@ CASES = [
     C("remove-box-malformed", "remove {scene} --box bad.json --out v", 2, "bad box", write("bad.json", {"center": [0, 0]})),
     C("remove-box-negative-size", "remove {scene} --box bad.json --out v", 2, "size must be positive", write("bad.json", {"center": [0, 0, 0], "size": [-1, 1, 1]})),
     C("remove-box-missing", "remove {scene} --box nope.json --out v", 2, "box file not found"),
-    C("remove-prompt-and-box", "remove {scene} mug --box mug.json --out v", 2, "not both", MUG),
+    C("remove-prompt-and-box", "remove {scene} mug --box mug.json --out v", 2, "not two", MUG),
+    C("remove-masks-not-a-folder", "remove {scene} --masks mug.json --out v", 2, "not a folder", MUG),
+    C("remove-masks-unmatched", "remove {scene} --masks m --out v --no-inpaint", 2, "no mask is named after a photo", write("m/unrelated.png", b"")),
     # 11. scene.json
     C("render-flat-aabb", "render {scene} --out r", 2, "aabb_m", lambda ws: set_scene(aabb_m=[ws.scene_json()["aabb_m"][0]] * 2)(ws)),
     C("render-nan-aabb", "render {scene} --out r", 2, "aabb_m", set_scene(aabb_m=[[0, 0, 0], [1, 1, float("nan")]])),

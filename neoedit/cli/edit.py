@@ -39,6 +39,10 @@ class RemoveCommand:
     """What to remove, e.g. "red mug" (needs a language field); or use --box."""
     box: Path | None = None
     """JSON box file ({"center", "size", "yaw_deg"}, or a list of them) instead of a prompt."""
+    masks: Path | None = None
+    """Folder of 2-D masks of the object (non-zero = the object; e.g. SAM's), each named
+    after a photo of the scan, instead of a prompt: the box is where the field's surface
+    under the masks lies."""
     edit: tyro.conf.OmitArgPrefixes[RemoveConfig] = dataclasses.field(default_factory=RemoveConfig)
     query: QueryConfig = dataclasses.field(default_factory=QueryConfig)
     overwrite: bool = False
@@ -52,9 +56,13 @@ class RemoveCommand:
 
         with edit_lock(self.out):
             scene = start_edit(
-                self.scene, self.out, self.prompt, self.box, self.overwrite, self.device
+                self.scene,
+                self.out,
+                (self.prompt, self.box, self.masks),
+                self.overwrite,
+                self.device,
             )
-            boxes = find_boxes(scene, self.prompt, self.box, self.query)
+            boxes = find_boxes(scene, self.prompt, self.box, self.query, self.masks)
             child, strips = remove(scene, boxes, self.edit, self.prompt)
             save_scene(
                 self.out, child, extras=lambda d: write_report(d / "report", scene, child, strips)
@@ -67,30 +75,49 @@ class RemoveCommand:
 
 
 def start_edit(
-    scene_dir: Path, out: Path, prompt: str | None, box: Path | None, overwrite: bool, device: str
+    scene_dir: Path,
+    out: Path,
+    target: tuple[str | None, Path | None, Path | None],
+    overwrite: bool,
+    device: str,
 ) -> Scene:
-    """The checks every edit makes before any work (one of prompt / box; an output that is
-    not the input and may be written), then the scene, loaded once."""
+    """The checks every edit makes before any work (exactly one ``target`` of prompt / box
+    file / masks folder; an output that is not the input and may be written), then the
+    scene, loaded once."""
     from neoedit.edit.history import check_output
     from neoedit.scene import load_scene
     from neoedit.utils.device import resolve_device
 
-    if (prompt is None) == (box is None):
-        raise NeoError('give either a prompt ("red mug") or --box BOX.json, not both')
+    if sum(t is not None for t in target) != 1:
+        raise NeoError('give one of a prompt ("red mug"), --box BOX.json or --masks FOLDER, not two')
+    if target[2] is not None and not Path(target[2]).is_dir():
+        raise NeoError(f"--masks {target[2]}: not a folder")
     check_output(scene_dir, out, overwrite)
     return load_scene(scene_dir, resolve_device(device))
 
 
 def find_boxes(
-    scene: Scene, prompt: str | None, box: Path | None, query: QueryConfig
+    scene: Scene,
+    prompt: str | None,
+    box: Path | None,
+    query: QueryConfig,
+    masks: Path | None = None,
 ) -> list[OrientedBox]:
-    """The boxes an edit works on: from a box file, or one per prompt (``;`` separates
-    several) found by the scene's language field."""
+    """The boxes an edit works on: from a box file, from 2-D masks of the object, or one
+    per prompt (``;`` separates several) found by the scene's language field."""
     from neoedit.geometry.box import load_boxes
     from neoedit.language.localize import find_objects
 
     if box is not None:
         return load_boxes(box)  # remove() / move() check them before any work
+    if masks is not None:
+        from neoedit.data.masks import read_object_masks
+        from neoedit.edit.points import box_from_masks
+
+        cameras, paths, _ = scene.scan_cameras()
+        found = box_from_masks(scene, cameras, read_object_masks(masks, paths, cameras))
+        console.print(f"masks in {escape(str(masks))}: box {json.dumps(found.to_dict())}")
+        return [found]
     boxes = []
     for res in find_objects(scene, prompt or "", query):
         console.print(
@@ -115,6 +142,9 @@ class MoveCommand:
     """What to move, e.g. "red mug" (needs a language field); or use --box."""
     box: Path | None = None
     """JSON box file ({"center", "size", "yaw_deg"}) instead of a prompt."""
+    masks: Path | None = None
+    """Folder of 2-D masks of the object, each named after a photo of the scan, instead of
+    a prompt (see ``neo remove --masks``)."""
     translate: tuple[float, float, float] | None = None
     """Translation in metres, world frame."""
     yaw: float = 0.0
@@ -144,9 +174,13 @@ class MoveCommand:
         transform = self.motion()
         with edit_lock(self.out):
             scene = start_edit(
-                self.scene, self.out, self.prompt, self.box, self.overwrite, self.device
+                self.scene,
+                self.out,
+                (self.prompt, self.box, self.masks),
+                self.overwrite,
+                self.device,
             )
-            boxes = find_boxes(scene, self.prompt, self.box, self.query)
+            boxes = find_boxes(scene, self.prompt, self.box, self.query, self.masks)
             motions = [Motion(b, motion_for(b, transform)) for b in boxes]
             cfg = dataclasses.replace(self.edit, method=self.method, preview=self.preview)
             child = move(scene, motions, cfg, self.prompt)

@@ -3,10 +3,12 @@
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 
 from neoedit.cameras import Cameras
 from neoedit.cameras.rays import CameraTensors, RayBundle
+from neoedit.errors import NeoError
 from neoedit.fields.radiance import Field
 from neoedit.geometry import OrientedBox
 from neoedit.geometry.masks import box_pixels
@@ -67,3 +69,71 @@ def original_box_rays(
     rays = CameraTensors(cameras, device).rays(allpix[:, 0], allpix[:, 1], allpix[:, 2])
     out = render_chunked(scene.field, scene.grid, rays, scene.meta.render, scene.background)
     return rays, out["rgb"]
+
+
+def box_from_masks(
+    scene: Scene,
+    cameras: Cameras,
+    masks: dict[int, np.ndarray],
+    rays_per_view: int = 1500,
+    agreement: float = 0.7,
+    seed: int = 0,
+) -> OrientedBox:
+    """The box around an object marked by 2-D masks (camera index -> (H,W) bool, e.g. SAM's
+    or a dataset's labels) in the scene's field: the surface its masked pixels see, kept
+    where at least ``agreement`` of the masks that see a point mark it too (depth that
+    bleeds onto the background behind a silhouette is voted out), bounded by the 2nd-98th
+    percentiles, its yaw from the points' principal axis in the ground plane."""
+    if not masks:
+        raise NeoError("no masks to find a box from")
+    rng = np.random.default_rng(seed)
+    dev = scene.field.aabb.device
+    cams_t = CameraTensors(cameras, dev)
+    found = []
+    for i, mask in masks.items():
+        v, u = np.nonzero(mask)
+        if len(v) == 0:
+            continue
+        pick = rng.choice(len(v), min(rays_per_view, len(v)), replace=False)
+        cam = torch.full((len(pick),), int(i), dtype=torch.long, device=dev)
+        rays = cams_t.rays(
+            cam, torch.as_tensor(v[pick], device=dev), torch.as_tensor(u[pick], device=dev)
+        )
+        field_, boxes = scene.renderable()
+        out = render_chunked(field_, scene.grid, rays, scene.meta.render, scene.background, boxes)
+        solid = out["accumulation"] > 0.5
+        t = out["depth_z"] / rays.z_scale
+        found.append((rays.origins + t[:, None] * rays.directions)[solid].cpu().numpy())
+    points = np.concatenate(found) if found else np.zeros((0, 3))
+    votes, seen = np.zeros(len(points)), np.zeros(len(points))
+    for i, mask in masks.items():
+        uv, z = cameras.project(int(i), points)
+        h, w = mask.shape
+        px = np.floor(uv).astype(np.int64)
+        inside = (z > 0) & (px[:, 0] >= 0) & (px[:, 0] < w) & (px[:, 1] >= 0) & (px[:, 1] < h)
+        seen += inside
+        votes[inside] += mask[px[inside, 1], px[inside, 0]]
+    kept = points[votes >= agreement * np.maximum(seen, 1)]
+    if len(kept) < 10:
+        raise NeoError(
+            f"the masks mark no surface the field agrees on ({len(kept)} points); check that "
+            "they belong to this scene's cameras"
+        )
+    xy = kept[:, :2] - kept[:, :2].mean(0)
+    axis = np.linalg.eigh(xy.T @ xy)[1][:, -1]
+    yaw = float(np.degrees(np.arctan2(axis[1], axis[0])))
+    rot = np.array(
+        [
+            [np.cos(np.radians(yaw)), -np.sin(np.radians(yaw))],
+            [np.sin(np.radians(yaw)), np.cos(np.radians(yaw))],
+        ]
+    )
+    local = np.column_stack([xy @ rot, kept[:, 2]])
+    lo, hi = np.percentile(local, 2, axis=0), np.percentile(local, 98, axis=0)
+    centre_local = 0.5 * (lo + hi)
+    centre_xy = kept[:, :2].mean(0) + rot @ centre_local[:2]
+    return OrientedBox(
+        (float(centre_xy[0]), float(centre_xy[1]), float(centre_local[2])),
+        tuple(float(s) for s in (hi - lo)),
+        yaw,
+    )

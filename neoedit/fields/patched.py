@@ -21,6 +21,7 @@ from torch import nn
 
 from neoedit.fields.composed import ComposedField
 from neoedit.fields.radiance import RadianceField
+from neoedit.fields.room import RoomField
 from neoedit.geometry import OrientedBox, points_in_box
 
 
@@ -64,6 +65,8 @@ class PatchedField(ComposedField):
         if not region:
             raise ValueError("a patch needs at least one box")
         new: RadianceField = copy.deepcopy(init if init is not None else self.renderer_of(region))
+        if isinstance(getattr(new, "background_head", None), RoomField):
+            new.background_head = None  # the scene's room stays the base's (patches are local)
         self.regions.append(list(region))
         self.parts.append(new)
         return new

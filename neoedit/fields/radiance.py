@@ -15,6 +15,7 @@ from torch import nn
 from neoedit.fields.background import DirectionalBackground
 from neoedit.fields.encodings import spherical_harmonics_deg3
 from neoedit.fields.hashgrid import HashGridConfig, HashGridEncoding
+from neoedit.fields.room import RoomConfig, RoomField
 
 
 @dataclass
@@ -34,6 +35,14 @@ class RadianceFieldConfig:
     (:mod:`neoedit.fields.background`) instead of the constant background colour. Default
     (None): learned for photos without an alpha channel (real captures see a room beyond the
     box), constant for RGBA renders such as NEO-Sim."""
+    room: bool | None = None
+    """Model everything outside the scene box as a second, coarser field in contracted space
+    (:mod:`neoedit.fields.room`): the floor, walls and furniture around the table get
+    geometry and parallax instead of a colour per ray direction. Default (None): on for
+    photos (as the learned background) unless ``closed_bottom`` asks for the environment
+    map, off for RGBA renders."""
+    room_field: RoomConfig = field(default_factory=RoomConfig)
+    """The room field's size and sampling (with ``room``)."""
     closed_bottom: bool = False
     """With a learned background, rays leaving the box through its bottom face see black,
     so a plain floor is learnt as a surface instead of painted in as far away (the box's
@@ -103,11 +112,13 @@ class RadianceField(nn.Module):
             nn.ReLU(),
             nn.Linear(cfg.hidden_dim_color, 3),
         )
-        self.background_head = (
-            DirectionalBackground(closed_box=self.aabb if cfg.closed_bottom else None)
-            if cfg.learned_background
-            else None
-        )
+        self.background_head: nn.Module | None = None
+        if cfg.room:
+            self.background_head = RoomField(cfg.room_field, self.aabb, seed=seed)
+        elif cfg.learned_background:
+            self.background_head = DirectionalBackground(
+                closed_box=self.aabb if cfg.closed_bottom else None
+            )
 
     def normalize(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """World points (N,3) -> unit-cube coordinates (N,3) and an inside-the-box mask (N,)."""

@@ -25,11 +25,12 @@ from __future__ import annotations
 import torch
 
 from neoedit.cameras.rays import RayBundle
-from neoedit.fields.background import Background, background_colors
+from neoedit.fields.background import Background
 from neoedit.fields.hashgrid import numba_available
 from neoedit.fields.radiance import Field
 from neoedit.rendering.intervals import RayIntervals
 from neoedit.rendering.occupancy import OccupancyGrid
+from neoedit.rendering.outside import outside_light
 
 
 def march_occupied_torch(
@@ -100,13 +101,15 @@ def march_render(
     intervals: RayIntervals,
     n_bins: int,
     background: Background,
+    near_m: float = 0.0,
     stop_transmittance: float = 1e-3,
     dilated: bool = False,
 ) -> dict[str, torch.Tensor]:
     """rgb (N,3), depth (N,) expected ray distance [m], depth_z (N,) and accumulation (N,)
     of ``rays`` over their valid ``intervals`` (see the module docstring). ``dilated``
     marches the grid's dilated occupancy (what training marches) instead of the occupied
-    cells themselves: exact at grazing silhouettes, 1.5x slower."""
+    cells themselves: exact at grazing silhouettes, 1.5x slower. A room background
+    (:mod:`neoedit.rendering.outside`) starts at ``near_m``."""
     mask = grid.occupied if dilated else grid.core
     t_all, count = march_occupied(rays, intervals, grid, mask, n_bins)
     device = rays.origins.device
@@ -140,6 +143,7 @@ def march_render(
         alive = (trans[active] > stop_transmittance) & (count[active] > pos)
         active = active[alive]
     acc = 1.0 - trans
-    rgb = rgb + trans[:, None] * background_colors(background, rays.origins, rays.directions)
+    light = outside_light(background, rays.origins, rays.directions, near_m)
+    rgb = light.around(rgb + trans[:, None] * light.back_rgb)
     depth = depth / acc.clamp_min(1e-6)
     return {"rgb": rgb, "depth": depth, "depth_z": depth * rays.z_scale, "accumulation": acc}

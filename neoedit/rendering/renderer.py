@@ -12,13 +12,14 @@ from dataclasses import dataclass
 import torch
 
 from neoedit.cameras.rays import CameraTensors, RayBundle
-from neoedit.fields.background import Background, background_colors
+from neoedit.fields.background import Background
 from neoedit.fields.radiance import Field
 from neoedit.geometry import OrientedBox
 from neoedit.geometry.rays import ray_aabb
 from neoedit.rendering.intervals import RayIntervals, cut_boxes, near_far_intervals
 from neoedit.rendering.march import march_render
 from neoedit.rendering.occupancy import OccupancyGrid
+from neoedit.rendering.outside import outside_light
 from neoedit.rendering.samplers import pdf_edges, uniform_edges
 from neoedit.rendering.volume import composite, render_weights
 
@@ -160,7 +161,8 @@ def render_rays(
     intervals: RayIntervals | None = None,
 ) -> dict[str, torch.Tensor]:
     """rgb (N,3), depth (N,) ray distance [m], depth_z (N,) z-depth [m], accumulation (N,),
-    weights (N,M) and the samples. With a grid, samples in empty cells skip the network.
+    weights (N,M) and the samples (depth and accumulation are the box's; a room background
+    adds its distortion loss (N,) as ``outside_distortion``). With a grid, samples in empty cells skip the network.
     ``intervals``: the domain to sample instead of each ray's valid one."""
     samples = sample_rays(field, grid, rays, cfg, boxes, jitter, generator, intervals)
     n, m = samples.t_mid.shape
@@ -174,8 +176,11 @@ def render_rays(
     sigma = torch.zeros(n * m, device=pts.device, dtype=sigma_k.dtype).index_put((idx,), sigma_k)
     rgb = torch.zeros(n * m, 3, device=pts.device, dtype=rgb_k.dtype).index_put((idx,), rgb_k)
     weights = render_weights(sigma.reshape(n, m), samples.deltas)
-    bg = background_colors(background, rays.origins, rays.directions)
-    out = composite(weights, rgb.reshape(n, m, 3), samples.t_mid, bg)
+    light = outside_light(background, rays.origins, rays.directions, cfg.near_m, jitter, generator)
+    out = composite(weights, rgb.reshape(n, m, 3), samples.t_mid, light.back_rgb)
+    out["rgb"] = light.around(out["rgb"])
+    if light.distortion is not None:
+        out["outside_distortion"] = light.distortion
     out["depth_z"] = out["depth"] * rays.z_scale
     out["weights"] = weights
     lo, hi = samples.bin_bounds()
@@ -205,7 +210,9 @@ def render_chunked(
         chunk = rays[start : start + cfg.chunk_rays]
         if cfg.fast_render and grid is not None:
             intervals = ray_intervals(field, chunk, cfg.near_m, boxes)
-            out = march_render(field, grid, chunk, intervals, cfg.n_march_samples, background)
+            out = march_render(
+                field, grid, chunk, intervals, cfg.n_march_samples, background, cfg.near_m
+            )
         else:
             out = render_rays(field, grid, chunk, cfg, background, boxes)
         for key in parts:

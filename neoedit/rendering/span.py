@@ -32,6 +32,7 @@ from neoedit.geometry.rays import ray_oriented_box
 from neoedit.rendering.intervals import near_far_intervals
 from neoedit.rendering.march import march_render
 from neoedit.rendering.occupancy import OccupancyGrid
+from neoedit.rendering.outside import outside_light
 from neoedit.rendering.renderer import RenderConfig, ray_intervals, render_rays
 
 
@@ -86,19 +87,22 @@ def outside_segments(
         valid = ray_intervals(field, chunk, cfg.near_m)
         a, b = valid.starts[:, 0], valid.ends[:, 0]
         s0, s1 = region_span(chunk, boxes, a, b)
+        # a room around the box is outermost: its front over the box's front, its back
+        # behind the box's back
+        light = outside_light(background, chunk.origins, chunk.directions, cfg.near_m)
         black = torch.zeros(3, device=a.device)
         front = march_render(
             field, grid, chunk, near_far_intervals(a, s0), cfg.n_march_samples, black
         )
         back = march_render(
-            field, grid, chunk, near_far_intervals(s1, b), cfg.n_march_samples, background
+            field, grid, chunk, near_far_intervals(s1, b), cfg.n_march_samples, light.back_rgb
         )
         parts.append(
             OutsideSegments(
                 s0,
                 s1,
-                front["rgb"],
-                1.0 - front["accumulation"],
+                light.around(front["rgb"]),
+                light.front_trans * (1.0 - front["accumulation"]),
                 front["depth"] * front["accumulation"],
                 back["rgb"],
                 back["accumulation"],

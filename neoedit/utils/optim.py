@@ -35,13 +35,15 @@ def make_adam(
 def field_param_groups(
     module: torch.nn.Module, lr: float, mlp_lr_factor: float = 1.0, mlp_weight_decay: float = 0.0
 ) -> list[dict[str, Any]]:
-    """Two parameter groups of a hash-grid field: its table (``encoding.*``) at ``lr`` and
+    """Two parameter groups of a hash-grid field: its tables (``encoding.*``, a room's
+    ``background_head.encoding.*``) at ``lr`` and
     everything else (the MLPs) at ``lr * mlp_lr_factor``; groups without parameters (a
     frozen part) are left out."""
-    enc = [p for n, p in module.named_parameters() if n.startswith("encoding.") and p.requires_grad]
-    mlp = [
-        p for n, p in module.named_parameters() if not n.startswith("encoding.") and p.requires_grad
-    ]
+    def table(name: str) -> bool:
+        return name.startswith("encoding.") or ".encoding." in name
+
+    enc = [p for n, p in module.named_parameters() if table(n) and p.requires_grad]
+    mlp = [p for n, p in module.named_parameters() if not table(n) and p.requires_grad]
     groups = [
         {"params": enc, "lr": lr, "weight_decay": 0.0, "name": "table"},
         {"params": mlp, "lr": lr * mlp_lr_factor, "weight_decay": mlp_weight_decay, "name": "mlp"},

@@ -38,6 +38,9 @@ BOUNDS: dict[str, tuple[float | None, float | None]] = {
     "chunk_rays": (1, 1 << 24),
     "dim": (1, 1 << 14),
     "dino_dim": (0, 1 << 14),
+    "start_radius": (1.0, None),  # the room's sphere must hold the box
+    "far_factor": (1.0, None),
+    "warmup": (0.0, 1.0),
 }
 _DEVICE_RE = re.compile(r"^(auto|cpu|mps|cuda(:\d+)?)$")
 

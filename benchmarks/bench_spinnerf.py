@@ -1,0 +1,200 @@
+"""A real removal with ground truth: SPIn-NeRF scene 1 (../shared/data/real/spinnerf_1).
+
+    python benchmarks/bench_spinnerf.py --out outputs/bench_spinnerf
+    python benchmarks/bench_spinnerf.py --out outputs/bench_spinnerf_room --room on
+
+The capture's README protocol: train on the 60 photos with the box, remove the box, render
+the poses of the 40 photos taken after it was carried away and compare. Steps (run alone):
+
+1. ``neo import llff`` of the capture; the split set to train = the photos with a label
+   mask, test = the photos without one (the "after" walk). ``--every K`` keeps every K-th
+   "after" photo as the test set (renders of this forward-facing capture take seconds).
+2. ``neo train --max-minutes M --skip-language`` (the room field as ``neo train`` decides,
+   or ``--room on|off``).
+3. The box the masks give: :func:`neoedit.edit.points.box_from_masks` on the label masks
+   of the training photos, grown by ``--margin`` of its size, written to OUT/box.json.
+4. ``neo remove SCENE --box OUT/box.json``.
+5. ``neo eval`` of the unedited and the edited scene against the "after" photos: the PSNR
+   of the whole image and inside the box's projection (``--out-box``), and a strip of
+   after photo | unedited | removed for three views (OUT/strip.png).
+
+Writes OUT/results.json; prints the figures and the commands that made them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import shlex
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import imageio.v3 as iio
+import numpy as np
+
+from neoedit.errors import NeoError
+
+CAPTURE = Path("../shared/data/real/spinnerf_1")
+
+
+def neo(*args: str) -> list[str]:
+    return [sys.executable, "-m", "neoedit", *args]
+
+
+def run(cmd: list[str]) -> float:
+    print("$", shlex.join(cmd[2:] if cmd[:2] == [sys.executable, "-m"] else cmd), flush=True)
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    if proc.returncode != 0:
+        sys.exit(f"failed ({proc.returncode}):\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")
+    return time.perf_counter() - t0
+
+
+def prepare(capture: Path, data: Path, every: int) -> dict:
+    seconds = run(neo("import", "llff", str(capture), "--out", str(data), "--overwrite"))
+    labels = {p.stem for p in (capture / "images_8" / "label").glob("*.png")}
+    meta = json.loads((data / "transforms.json").read_text())
+    names = [f["file_path"] for f in meta["frames"]]
+    meta["train_filenames"] = [n for n in names if Path(n).stem in labels]
+    meta["test_filenames"] = [n for n in names if Path(n).stem not in labels][::every]
+    (data / "transforms.json").write_text(json.dumps(meta, indent=1))
+    return {
+        "seconds": round(seconds, 1),
+        "train": len(meta["train_filenames"]),
+        "test": len(meta["test_filenames"]),
+    }
+
+
+def find_box(capture: Path, scene_dir: Path, data: Path, margin: float) -> dict:
+    from neoedit.data import load_scene_data
+    from neoedit.edit.points import box_from_masks
+    from neoedit.geometry import OrientedBox
+    from neoedit.scene import load_scene
+
+    scene, d = load_scene(scene_dir), load_scene_data(data)
+    masks = {}
+    for i in d.split["train"]:
+        label = capture / "images_8" / "label" / (Path(d.file_paths[i]).stem + ".png")
+        mask = iio.imread(label)
+        masks[int(i)] = (mask.max(-1) if mask.ndim == 3 else mask) > 0
+    t0 = time.perf_counter()
+    box = box_from_masks(scene, d.cameras, masks)
+    grown = OrientedBox(box.center_m, tuple(s * (1 + 2 * margin) for s in box.size_m), box.yaw_deg)
+    (scene_dir.parent / "box.json").write_text(json.dumps(grown.to_dict()))
+    return {"box": grown.to_dict(), "seconds": round(time.perf_counter() - t0, 1)}
+
+
+def evaluate(scene_dir: Path, data: Path, box: Path | None, out: Path) -> dict:
+    json_path = out / f"eval_{scene_dir.name}.json"
+    region = [] if box is None else ["--out-box", str(box)]
+    cmd = neo("eval", str(scene_dir), "--data", str(data), *region, "--json", str(json_path))
+    seconds = run([*cmd, "--overwrite"])
+    metrics = json.loads(json_path.read_text())
+    return {
+        "full_psnr": metrics["full"]["psnr"],
+        "box_psnr": metrics.get("out", {}).get("psnr"),
+        "full_ssim": metrics["full"]["ssim"],
+        "seconds": round(seconds, 1),
+    }
+
+
+def strip(scenes: list[Path], data: Path, path: Path, views: int = 3) -> None:
+    import torch
+
+    from neoedit.cameras.rays import CameraTensors
+    from neoedit.data import load_scene_data
+    from neoedit.scene import load_scene
+
+    d = load_scene_data(data)
+    cams = CameraTensors(d.cameras)
+    test = d.split["test"]
+    chosen = test[np.linspace(0, len(test) - 1, views).round().astype(int)]
+    rows = []
+    loaded = [load_scene(s) for s in scenes]
+    for i in chosen:
+        tiles = [d.images[i]]
+        for scene in loaded:
+            with torch.no_grad():
+                rgb = scene.render_image(cams, int(i), d.height, d.width)["rgb"]
+            tiles.append((rgb.clamp(0, 1).numpy() * 255).round().astype(np.uint8))
+        rows.append(np.concatenate(tiles, 1))
+    iio.imwrite(path, np.concatenate(rows, 0))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--capture", type=Path, default=CAPTURE)
+    ap.add_argument("--out", type=Path, default=Path("outputs/bench_spinnerf"))
+    ap.add_argument("--minutes", type=float, default=5.0)
+    ap.add_argument("--every", type=int, default=4, help="keep every K-th 'after' photo")
+    ap.add_argument("--margin", type=float, default=0.1, help="box growth per side, of its size")
+    ap.add_argument(
+        "--room",
+        choices=("auto", "on", "off"),
+        default="auto",
+        help="the room field around the box (auto: neo train's default)",
+    )
+    args = ap.parse_args()
+    if not (args.capture / "poses_bounds.npy").is_file():
+        sys.exit(f"{args.capture}: not the spinnerf_1 capture (no poses_bounds.npy)")
+    out = args.out
+    out.mkdir(parents=True, exist_ok=True)
+    data, scene, removed = out / "data", out / "scene", out / "removed"
+    if scene.exists() or removed.exists():
+        sys.exit(f"{out} holds an earlier run (scene/ or removed/): choose another --out")
+    results: dict = {
+        "date": time.strftime("%Y-%m-%d %H:%M"),
+        "machine": platform.node(),
+        "command": shlex.join(sys.argv),
+        "room": args.room,
+    }
+    results["data"] = prepare(args.capture, data, args.every)
+    train = neo(
+        "train",
+        str(data),
+        "--out",
+        str(scene),
+        "--max-minutes",
+        str(args.minutes),
+        "--skip-language",
+        "--quiet",
+    )
+    if args.room != "auto":
+        train += ["--field.room", str(args.room == "on")]
+    results["train_seconds"] = round(run(train), 1)
+    history = json.loads((scene / "scene.json").read_text())["history"][-1]
+    results["train"] = {k: history[k] for k in ("step", "train_psnr", "eval_psnr", "rays_per_s")}
+    try:
+        results["box"] = find_box(args.capture, scene, data, args.margin)
+    except NeoError as e:  # e.g. the object is not in the scene box: nothing to remove
+        results["box"] = {"refused": str(e)}
+        results["unedited"] = evaluate(scene, data, None, out)
+        (out / "results.json").write_text(json.dumps(results, indent=1))
+        print(json.dumps(results, indent=1))
+        return
+    results["remove_seconds"] = round(
+        run(
+            neo(
+                "remove",
+                str(scene),
+                "--box",
+                str(out / "box.json"),
+                "--out",
+                str(removed),
+                "--overwrite",
+            )
+        ),
+        1,
+    )
+    results["unedited"] = evaluate(scene, data, out / "box.json", out)
+    results["removed"] = evaluate(removed, data, out / "box.json", out)
+    strip([scene, removed], data, out / "strip.png")
+    (out / "results.json").write_text(json.dumps(results, indent=1))
+    print(json.dumps(results, indent=1))
+
+
+if __name__ == "__main__":
+    main()

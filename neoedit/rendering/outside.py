@@ -1,0 +1,180 @@
+"""What rays meet outside the scene box: the background, or the room around the box.
+
+A background is a constant colour, an environment map of the ray direction, or a
+:class:`~neoedit.fields.room.RoomField`. The renderers composite the box's segment of each
+ray and then :func:`outside_light` around it: a room's light in front of the box (and the
+fraction of the box it lets through), and the light from behind the box.
+
+The room is sampled along each ray on a warped distance ``g(t)``: linear up to ``t_b`` (the
+far side of the ball around the box seen from the ray's origin), then linear in disparity
+to the far plane (``g = 2 t_b - t_b^2 / t``, continuous with a continuous slope): about half
+the samples near the table, half for the room. The box's segment is cut out of that
+domain, so the room never answers inside the box. Two passes, as the box's own sampler:
+density-only samples spread evenly, then samples drawn where they found matter.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from neoedit.fields.background import Background, background_colors
+from neoedit.fields.room import RoomField
+from neoedit.rendering.intervals import RayIntervals
+from neoedit.rendering.samplers import pdf_edges, uniform_edges
+from neoedit.rendering.volume import distortion_loss, render_weights
+
+
+def warp(t: torch.Tensor, t_b: torch.Tensor) -> torch.Tensor:
+    """Ray distance t -> sampling coordinate g (``t_b`` broadcast)."""
+    return torch.where(t <= t_b, t, 2.0 * t_b - t_b * t_b / t.clamp_min(1e-9))
+
+
+def unwarp(g: torch.Tensor, t_b: torch.Tensor) -> torch.Tensor:
+    """Inverse of :func:`warp` for g < 2 t_b."""
+    return torch.where(g <= t_b, g, t_b * t_b / (2.0 * t_b - g).clamp_min(1e-9))
+
+
+def warp_slope(t: torch.Tensor, t_b: torch.Tensor) -> torch.Tensor:
+    """dt/dg at ray distance t: a bin's width in g times this is its width in metres."""
+    return torch.where(t <= t_b, torch.ones_like(t), (t / t_b) ** 2)
+
+
+@dataclass
+class OutsideLight:
+    """What lies outside the box's segment of rays: the premultiplied colour (N,3) in front
+    of the box and the fraction (N,) of the box it lets through, the colour (N,3) or (3,)
+    arriving from behind the box, and the room's distortion loss (N,) when there is a room."""
+
+    front_rgb: torch.Tensor | float
+    front_trans: torch.Tensor | float
+    back_rgb: torch.Tensor
+    distortion: torch.Tensor | None = None
+
+    def around(self, box_rgb: torch.Tensor) -> torch.Tensor:
+        """Whole-ray colours (N,3) from the box segment's colour composited over
+        :attr:`back_rgb`."""
+        if isinstance(self.front_trans, torch.Tensor):
+            return self.front_rgb + self.front_trans[:, None] * box_rgb
+        return box_rgb
+
+
+def ray_sphere(
+    origins: torch.Tensor, directions: torch.Tensor, center: torch.Tensor, radius: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Entry and exit distances (N,) of rays (unit directions) with a sphere; exit < entry
+    means no hit."""
+    oc = origins - center
+    b = (oc * directions).sum(-1)
+    disc = b * b - ((oc * oc).sum(-1) - radius * radius)
+    root = disc.clamp_min(0.0).sqrt()
+    miss = disc < 0
+    return torch.where(miss, torch.ones_like(b), -b - root), torch.where(
+        miss, torch.zeros_like(b), -b + root
+    )
+
+
+def room_domain(
+    room: RoomField, origins: torch.Tensor, directions: torch.Tensor, near_m: float
+) -> tuple[RayIntervals, torch.Tensor, torch.Tensor]:
+    """The room's part of each ray in warped coordinates (the interval in front of the box,
+    the one behind it), the warp's t_b (N,1), and the g (N,) where the box's segment starts
+    (the far end for rays that miss the box)."""
+    t_b = ((origins - room.center).norm(dim=-1) + room.radius)[:, None]
+    far = t_b[:, 0] + room.cfg.far_factor * room.radius
+    near = torch.full_like(far, max(near_m, 0.0))
+    # the room is everything beyond the sphere of radius start_radius * r around the box
+    # centre (which holds the box): rays are cut at that sphere, not at the box
+    t_in, t_out = ray_sphere(origins, directions, room.center, room.cfg.start_radius * room.radius)
+    hit = (t_out > t_in) & (t_out > near)
+    t_in = torch.where(hit, t_in.clamp(near, far), far)
+    t_out = torch.where(hit, t_out.clamp(near, far), far)
+    g = warp(torch.stack([near, t_in, t_out, far], -1), t_b)
+    return RayIntervals(g[:, [0, 2]], g[:, [1, 3]]), t_b, g[:, 1]
+
+
+VISIBLE_WEIGHT = 1e-4
+"""Without gradients, the room's colour is computed only where a sample's weight exceeds
+this (what no render can show is skipped)."""
+
+
+def _room_samples(room, origins, d, intervals, t_b, g_box, edges, density_only=False):
+    """Bins ``edges`` (N, M+1) of the room domain -> sigma (N,M), rgb (N,M,3) (None when
+    ``density_only``), widths (N,M) [m] and the bins' warped coordinates (N,M)."""
+    n, m = edges.shape[0], edges.shape[1] - 1
+    g_mid = intervals.domain_to_t(0.5 * (edges[:, 1:] + edges[:, :-1]))
+    t_mid = unwarp(g_mid, t_b)
+    deltas = (edges[:, 1:] - edges[:, :-1]) * warp_slope(t_mid, t_b)
+    points = (origins[:, None, :] + t_mid[..., None] * d[:, None, :]).reshape(-1, 3)
+    if density_only:
+        return room.density_and_features(points)[0].reshape(n, m), None, deltas, g_mid
+    dirs = d[:, None, :].expand(n, m, 3).reshape(-1, 3)
+    if torch.is_grad_enabled():
+        sigma, rgb = room.query(points, dirs)
+        return sigma.reshape(n, m), rgb.reshape(n, m, 3), deltas, g_mid
+    sigma, geo = room.density_and_features(points)
+    sigma = sigma.reshape(n, m)
+    visible = _split_weights(sigma * deltas, g_mid < g_box[:, None]).sum(0) > VISIBLE_WEIGHT
+    visible = visible.reshape(-1)
+    rgb = torch.zeros(n * m, 3, dtype=geo.dtype, device=geo.device)
+    rgb[visible] = room.color(geo[visible], dirs[visible])
+    return sigma, rgb.reshape(n, m, 3), deltas, g_mid
+
+
+def _split_weights(tau: torch.Tensor, front: torch.Tensor) -> torch.Tensor:
+    """(2, N, M) volume-rendering weights of optical depths ``tau`` (N,M): of the samples in
+    ``front`` of the box, and of those behind it (each with its own transmittance)."""
+    ones = torch.ones_like(tau)
+    w_front = render_weights(tau * front, ones) * front
+    w_back = render_weights(tau * ~front, ones) * ~front
+    return torch.stack([w_front, w_back])
+
+
+def room_light(
+    room: RoomField,
+    origins: torch.Tensor,
+    directions: torch.Tensor,
+    near_m: float,
+    jitter: bool = False,
+    generator: torch.Generator | None = None,
+) -> OutsideLight:
+    """The room's light around the box on rays (origins, directions (N,3)) starting at
+    ``near_m``; differentiable in the room's answers at the rendered samples."""
+    d = directions / directions.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    intervals, t_b, g_box = room_domain(room, origins, d, near_m)
+    total = intervals.total
+    edges = uniform_edges(total, room.cfg.n_coarse_samples, jitter, generator)
+    with torch.no_grad():
+        sigma, _, deltas, _ = _room_samples(room, origins, d, intervals, t_b, g_box, edges, True)
+        weights = render_weights(sigma, deltas)
+    fine = pdf_edges(edges, weights, room.cfg.n_samples, jitter, generator)
+    sigma, rgb, deltas, g_mid = _room_samples(room, origins, d, intervals, t_b, g_box, fine)
+    front = g_mid < g_box[:, None]
+    tau_front, tau_back = sigma * deltas * front, sigma * deltas * ~front
+    w_front, w_back = _split_weights(sigma * deltas, front)
+    beyond = torch.exp(-tau_back.sum(-1))
+    back_rgb = (w_back[..., None] * rgb).sum(1) + beyond[:, None] * room.environment(d)
+    distortion = None
+    if torch.is_grad_enabled():
+        scale = total.clamp_min(1e-9)[:, None]
+        w_all = render_weights(sigma, deltas)
+        distortion = distortion_loss(w_all, fine[:, :-1] / scale, fine[:, 1:] / scale)
+    return OutsideLight(
+        (w_front[..., None] * rgb).sum(1), torch.exp(-tau_front.sum(-1)), back_rgb, distortion
+    )
+
+
+def outside_light(
+    background: Background,
+    origins: torch.Tensor,
+    directions: torch.Tensor,
+    near_m: float,
+    jitter: bool = False,
+    generator: torch.Generator | None = None,
+) -> OutsideLight:
+    """What ``background`` adds around the box's segment of rays: a room's light in front of
+    and behind the box; for a colour or an environment map, the colour behind it."""
+    if isinstance(background, RoomField):
+        return room_light(background, origins, directions, near_m, jitter, generator)
+    return OutsideLight(0.0, 1.0, background_colors(background, origins, directions))

@@ -1,0 +1,179 @@
+"""The room around the scene box (fields/room.py, rendering/outside.py): the warp, the
+light in front of and behind the box against a brute-force integral, the box cut out of the
+room's samples, and a room that travels with the scene but not with its patches."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import torch
+
+from neoedit.cameras.rays import RayBundle
+from neoedit.fields.hashgrid import HashGridConfig
+from neoedit.fields.radiance import RadianceField
+from neoedit.fields.room import RoomConfig, RoomField, contract
+from neoedit.geometry import OrientedBox
+from neoedit.rendering import outside
+from neoedit.rendering.occupancy import OccupancyGrid
+from neoedit.rendering.outside import outside_light, room_domain, unwarp, warp, warp_slope
+from neoedit.rendering.renderer import render_chunked, render_rays
+from tests.conftest import TINY_FIELD, TINY_GRID, TINY_RENDER
+
+BOX = torch.tensor([[-0.2, -0.2, -0.1], [0.2, 0.2, 0.1]])
+SMALL_ROOM = RoomConfig(
+    hashgrid=HashGridConfig(n_levels=4, log2_hashmap_size=12, max_resolution=64),
+    n_coarse_samples=64,
+    n_samples=64,
+)
+
+
+class ShellRoom(RoomField):
+    """A room with a known answer: a soft shell of density around the box at 1.5 m and a
+    colour that changes with the position."""
+
+    def density_and_features(self, points):
+        r = points.norm(dim=-1)
+        sigma = 4.0 * torch.exp(-(((r - 1.5) / 0.3) ** 2))
+        return sigma, torch.cat([points, torch.zeros(len(points), 12)], -1)
+
+    def color(self, geo, directions):
+        return 0.5 + 0.4 * torch.tanh(geo[:, :3])
+
+
+def _brute_force(room, origins, directions, start, end, n=200_000):
+    """Premultiplied colour and transmittance of [start, end] of one ray, by a Riemann sum."""
+    t = torch.linspace(start, end, n + 1, dtype=torch.float64)
+    mid, dt = 0.5 * (t[1:] + t[:-1]), t[1:] - t[:-1]
+    pts = (origins[None].double() + mid[:, None] * directions[None].double()).float()
+    sigma, rgb = room.query(pts, directions[None].expand(n, 3))
+    tau = sigma.double() * dt
+    trans = torch.exp(-torch.cumsum(torch.cat([torch.zeros(1, dtype=torch.float64), tau[:-1]]), 0))
+    colour = ((trans * (1 - torch.exp(-tau)))[:, None] * rgb.double()).sum(0)
+    return colour, float(torch.exp(-tau.sum()))
+
+
+def test_the_warp_is_continuous_invertible_and_its_slope_is_its_derivative():
+    t_b = torch.tensor([[2.0]])
+    t = torch.tensor([[0.1, 1.0, 1.999, 2.0, 2.001, 5.0, 100.0, 1e4]])
+    g = warp(t, t_b)
+    torch.testing.assert_close(unwarp(g, t_b), t, rtol=5e-4, atol=1e-5)  # float32 far out
+    assert bool((g[:, 1:] > g[:, :-1]).all()) and bool((g < 2 * t_b).all())
+    t64, tb64 = t.double(), t_b.double()
+    eps = 1e-4 * t64
+    numeric = 2 * eps / (warp(t64 + eps, tb64) - warp(t64 - eps, tb64))
+    torch.testing.assert_close(warp_slope(t64, tb64), numeric, rtol=1e-3, atol=0)
+
+
+def test_contraction_keeps_the_unit_ball_and_bounds_everything():
+    y = torch.tensor([[0.3, -0.2, 0.1], [3.0, 0.0, 0.0], [0.0, -1e6, 0.0]])
+    c = contract(y)
+    torch.testing.assert_close(c[0], y[0])
+    torch.testing.assert_close(c[1], torch.tensor([2.0 - 1.0 / 3.0, 0.0, 0.0]))
+    assert float(c.norm(dim=-1).max()) < 2.0
+
+
+def test_room_light_matches_a_brute_force_integral_in_front_of_and_behind_the_box():
+    room = ShellRoom(SMALL_ROOM, BOX)
+    origins = torch.tensor([[0.6, 0.05, 0.02], [0.6, 0.05, 0.02]])
+    directions = torch.nn.functional.normalize(
+        torch.tensor([[-1.0, 0.0, 0.0], [-1.0, 0.0, 1.5]]), dim=-1
+    )  # through the box; past it (misses)
+    near = 0.05
+    with torch.no_grad():
+        light = outside_light(room, origins, directions, near)
+        env = room.environment(directions)
+    far = float(((origins[0] - room.center).norm() + room.radius) + 1000 * room.radius)
+    # ray 0: the room in front of the box is [near, 0.4], behind it [0.8, far]
+    front, t_front = _brute_force(room, origins[0], directions[0], near, 0.4)
+    back, t_back = _brute_force(room, origins[0], directions[0], 0.8, far)
+    assert abs(float(light.front_trans[0]) - t_front) < 0.01
+    torch.testing.assert_close(light.front_rgb[0].double(), front, atol=0.01, rtol=0)
+    torch.testing.assert_close(
+        light.back_rgb[0].double(), back + t_back * env[0].double(), atol=0.02, rtol=0
+    )
+    assert t_back < 0.5  # the shell behind the box is really there
+    # ray 1 misses the box: everything is in front, nothing comes from behind it
+    whole, t_whole = _brute_force(room, origins[1], directions[1], near, far)
+    torch.testing.assert_close(
+        light.around(light.back_rgb)[1].double(),
+        whole + t_whole * env[1].double(),
+        atol=0.02,
+        rtol=0,
+    )
+    assert float(light.back_rgb[1].sub(env[1]).abs().max()) < 1e-5
+
+
+def test_no_room_sample_lands_in_the_box():
+    room = RoomField(SMALL_ROOM, BOX)
+    gen = torch.Generator().manual_seed(0)
+    origins = torch.randn(256, 3, generator=gen) * 0.8
+    directions = torch.nn.functional.normalize(torch.randn(256, 3, generator=gen), dim=-1)
+    seen = []
+    original = outside._room_samples
+
+    def spy(room_, o, d, intervals, t_b, g_box, edges, density_only=False):
+        mid = intervals.domain_to_t(0.5 * (edges[:, 1:] + edges[:, :-1]))
+        t = unwarp(mid, t_b)
+        seen.append(o[:, None, :] + t[..., None] * d[:, None, :])
+        return original(room_, o, d, intervals, t_b, g_box, edges, density_only)
+
+    outside._room_samples = spy
+    try:
+        with torch.no_grad():
+            outside_light(room, origins, directions, 0.0, jitter=True, generator=gen)
+    finally:
+        outside._room_samples = original
+    pts = torch.cat([p.reshape(-1, 3) for p in seen])
+    inside = ((pts > BOX[0] + 1e-4) & (pts < BOX[1] - 1e-4)).all(-1)
+    assert len(seen) == 2 and not bool(inside.any())
+    intervals, _, _ = room_domain(room, origins, directions, 0.0)
+    assert bool((intervals.total > 0).all())
+
+
+def test_a_room_field_renders_the_same_in_both_renderers_and_learns_from_a_loss():
+    cfg = dataclasses.replace(TINY_FIELD, learned_background=True, room=True, room_field=SMALL_ROOM)
+    field = RadianceField(cfg, BOX)
+    assert isinstance(field.background_head, RoomField)
+    grid = OccupancyGrid(TINY_GRID, BOX)
+    grid.update(field.density, 0)
+    gen = torch.Generator().manual_seed(1)
+    origins = torch.tensor([[0.7, 0.0, 0.05]]).expand(64, 3).contiguous()
+    directions = torch.nn.functional.normalize(
+        torch.tensor([-1.0, 0.0, 0.0]) + 0.3 * torch.randn(64, 3, generator=gen), dim=-1
+    )
+    rays = RayBundle(origins, directions, torch.ones(64))
+    slow = render_rays(field, grid, rays, TINY_RENDER, field.background_head)
+    fast = render_chunked(field, grid, rays, TINY_RENDER, field.background_head)
+    torch.testing.assert_close(slow["rgb"].detach(), fast["rgb"], atol=0.02, rtol=0)
+    (slow["rgb"].sum() + slow["outside_distortion"].sum()).backward()
+    table = field.background_head.encoding.table.grad
+    assert table is not None and float(table.abs().sum()) > 0
+
+
+def test_a_patch_does_not_copy_the_room():
+    from neoedit.fields.patched import PatchedField
+
+    cfg = dataclasses.replace(TINY_FIELD, learned_background=True, room=True, room_field=SMALL_ROOM)
+    patched = PatchedField(RadianceField(cfg, BOX))
+    patch = patched.add_patch([OrientedBox((0.0, 0.0, 0.0), (0.1, 0.1, 0.1), 0.0)])
+    assert patch.background_head is None
+    assert isinstance(patched.base.background_head, RoomField)
+
+
+def test_photos_from_outside_the_box_get_a_room_and_photos_from_inside_do_not(tmp_path):
+    import numpy as np
+
+    from neoedit.data import load_scene_data
+    from neoedit.training.trainer import _field_config, cameras_outside
+    from tests.test_background import _environment_dataset
+
+    _environment_dataset(tmp_path / "data", n=6)
+    data = load_scene_data(tmp_path / "data")
+    around_table = np.asarray(data.scene_aabb_m)  # the cameras circle it at 0.6 m
+    whole_room = np.array([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
+    assert cameras_outside(data, around_table) == 1.0
+    assert cameras_outside(data, whole_room) == 0.0
+    assert _field_config(None, data, around_table).room is True
+    assert _field_config(None, data, whole_room).room is False
+    forced = dataclasses.replace(TINY_FIELD, room=True)
+    assert _field_config(forced, data, whole_room).room is True
