@@ -41,7 +41,8 @@ from neoedit.fields.radiance import RadianceFieldConfig
 from neoedit.rendering.occupancy import OccupancyGridConfig
 from neoedit.rendering.renderer import RenderConfig, render_image
 from neoedit.scene import Scene, SceneMeta, load_scene, save_scene
-from neoedit.training.trainer import TrainConfig, Trainer, median_camera_distance, scene_box
+from neoedit.training.defaults import median_camera_distance, scene_box
+from neoedit.training.trainer import TrainConfig, Trainer
 
 MARKS_S = (30, 45, 60, 90, 120)
 

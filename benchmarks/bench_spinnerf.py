@@ -70,16 +70,16 @@ def prepare(capture: Path, data: Path, every: int) -> dict:
 
 def find_box(capture: Path, scene_dir: Path, data: Path, margin: float) -> dict:
     from neoedit.data import load_scene_data
+    from neoedit.data.masks import read_object_masks
     from neoedit.edit.points import box_from_masks
     from neoedit.geometry import OrientedBox
     from neoedit.scene import load_scene
 
     scene, d = load_scene(scene_dir), load_scene_data(data)
-    masks = {}
-    for i in d.split["train"]:
-        label = capture / "images_8" / "label" / (Path(d.file_paths[i]).stem + ".png")
-        mask = iio.imread(label)
-        masks[int(i)] = (mask.max(-1) if mask.ndim == 3 else mask) > 0
+    # the label masks of the training photos (the CLI's reader: neo remove --masks)
+    train = set(int(i) for i in d.split["train"])
+    masks = read_object_masks(capture / "images_8" / "label", list(d.file_paths), d.cameras)
+    masks = {i: m for i, m in masks.items() if i in train}
     t0 = time.perf_counter()
     box = box_from_masks(scene, d.cameras, masks)
     grown = OrientedBox(box.center_m, tuple(s * (1 + 2 * margin) for s in box.size_m), box.yaw_deg)

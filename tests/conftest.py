@@ -79,7 +79,8 @@ def tiny_trainer(data_path: Path, near_m: float, cfg: TrainConfig):
     that has run ``cfg.max_steps`` steps; nothing is saved."""
     from neoedit.data import load_scene_data
     from neoedit.scene import Scene, SceneMeta
-    from neoedit.training.trainer import Trainer, scene_box
+    from neoedit.training.defaults import scene_box
+    from neoedit.training.trainer import Trainer
 
     data = load_scene_data(data_path)
     meta = SceneMeta(

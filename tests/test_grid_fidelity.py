@@ -17,7 +17,8 @@ from neoedit.cameras import Cameras, look_at
 from neoedit.data import load_scene_data
 from neoedit.data.bounds import alpha_hull_box
 from neoedit.sim.blender_scene import BlenderSceneSpec, write_blender_scene
-from neoedit.training.trainer import TrainConfig, median_camera_distance, scene_box
+from neoedit.training.defaults import median_camera_distance, scene_box
+from neoedit.training.trainer import TrainConfig
 from tests.conftest import tiny_trainer
 
 

@@ -15,7 +15,13 @@ from neoedit.fields.room import RoomConfig, RoomField, contract
 from neoedit.geometry import OrientedBox
 from neoedit.rendering import outside
 from neoedit.rendering.occupancy import OccupancyGrid
-from neoedit.rendering.outside import outside_light, room_domain, unwarp, warp, warp_slope
+from neoedit.rendering.outside import (
+    outside_light,
+    ray_sphere,
+    room_domain,
+    unwarp,
+    warp,
+)
 from neoedit.rendering.renderer import render_chunked, render_rays
 from tests.conftest import TINY_FIELD, TINY_GRID, TINY_RENDER
 
@@ -41,8 +47,10 @@ class ShellRoom(RoomField):
 
 
 def _brute_force(room, origins, directions, start, end, n=200_000):
-    """Premultiplied colour and transmittance of [start, end] of one ray, by a Riemann sum."""
-    t = torch.linspace(start, end, n + 1, dtype=torch.float64)
+    """Premultiplied colour and transmittance of [start, end] of one ray, by a Riemann sum
+    evenly spaced in disparity (the far end is hundreds of metres away)."""
+    inv = torch.linspace(1.0 / start, 1.0 / end, n + 1, dtype=torch.float64)
+    t = 1.0 / inv
     mid, dt = 0.5 * (t[1:] + t[:-1]), t[1:] - t[:-1]
     pts = (origins[None].double() + mid[:, None] * directions[None].double()).float()
     sigma, rgb = room.query(pts, directions[None].expand(n, 3))
@@ -52,7 +60,7 @@ def _brute_force(room, origins, directions, start, end, n=200_000):
     return colour, float(torch.exp(-tau.sum()))
 
 
-def test_the_warp_is_continuous_invertible_and_its_slope_is_its_derivative():
+def test_the_warp_is_invertible_and_linear_then_linear_in_disparity():
     t_b = torch.tensor([[2.0]])
     t = torch.tensor([[0.1, 1.0, 1.999, 2.0, 2.001, 5.0, 100.0, 1e4]])
     g = warp(t, t_b)
@@ -60,8 +68,9 @@ def test_the_warp_is_continuous_invertible_and_its_slope_is_its_derivative():
     assert bool((g[:, 1:] > g[:, :-1]).all()) and bool((g < 2 * t_b).all())
     t64, tb64 = t.double(), t_b.double()
     eps = 1e-4 * t64
-    numeric = 2 * eps / (warp(t64 + eps, tb64) - warp(t64 - eps, tb64))
-    torch.testing.assert_close(warp_slope(t64, tb64), numeric, rtol=1e-3, atol=0)
+    slope = (warp(t64 + eps, tb64) - warp(t64 - eps, tb64)) / (2 * eps)
+    torch.testing.assert_close(slope[:, :3], torch.ones_like(slope[:, :3]), rtol=1e-6, atol=0)
+    torch.testing.assert_close(slope[:, 4:], (tb64 / t64[:, 4:]) ** 2, rtol=1e-3, atol=0)
 
 
 def test_contraction_keeps_the_unit_ball_and_bounds_everything():
@@ -83,9 +92,10 @@ def test_room_light_matches_a_brute_force_integral_in_front_of_and_behind_the_bo
         light = outside_light(room, origins, directions, near)
         env = room.environment(directions)
     far = float(((origins[0] - room.center).norm() + room.radius) + 1000 * room.radius)
-    # ray 0: the room in front of the box is [near, 0.4], behind it [0.8, far]
-    front, t_front = _brute_force(room, origins[0], directions[0], near, 0.4)
-    back, t_back = _brute_force(room, origins[0], directions[0], 0.8, far)
+    # ray 0: the room lies in front of the sphere around the box and behind it
+    t_in, t_out = ray_sphere(origins[:1], directions[:1], room.center, room.radius)
+    front, t_front = _brute_force(room, origins[0], directions[0], near, float(t_in))
+    back, t_back = _brute_force(room, origins[0], directions[0], float(t_out), far)
     assert abs(float(light.front_trans[0]) - t_front) < 0.01
     torch.testing.assert_close(light.front_rgb[0].double(), front, atol=0.01, rtol=0)
     torch.testing.assert_close(
@@ -164,7 +174,7 @@ def test_photos_from_outside_the_box_get_a_room_and_photos_from_inside_do_not(tm
     import numpy as np
 
     from neoedit.data import load_scene_data
-    from neoedit.training.trainer import _field_config, cameras_outside
+    from neoedit.training.defaults import cameras_outside, field_config
     from tests.test_background import _environment_dataset
 
     _environment_dataset(tmp_path / "data", n=6)
@@ -173,7 +183,42 @@ def test_photos_from_outside_the_box_get_a_room_and_photos_from_inside_do_not(tm
     whole_room = np.array([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
     assert cameras_outside(data, around_table) == 1.0
     assert cameras_outside(data, whole_room) == 0.0
-    assert _field_config(None, data, around_table).room is True
-    assert _field_config(None, data, whole_room).room is False
+    auto = dataclasses.replace(TINY_FIELD, room=None)
+    assert field_config(auto, data, around_table).room is True
+    assert field_config(auto, data, whole_room).room is False
+    assert field_config(None, data, around_table).room is False  # opt-in for now
     forced = dataclasses.replace(TINY_FIELD, room=True)
-    assert _field_config(forced, data, whole_room).room is True
+    assert field_config(forced, data, whole_room).room is True
+
+
+class FogRoom(RoomField):
+    """A room of constant density and colour out to 3 m from the box centre."""
+
+    def density_and_features(self, points):
+        sigma = torch.where(points.norm(dim=-1) < 3.0, 0.3, 0.0)
+        return sigma, torch.zeros(len(points), 15)
+
+    def color(self, geo, directions):
+        return torch.full((len(geo), 3), 0.7)
+
+
+def test_training_and_rendering_see_the_same_room():
+    room = FogRoom(SMALL_ROOM, BOX)
+    gen = torch.Generator().manual_seed(0)
+    origins = torch.tensor([[2.0, 0.0, 0.0]]).expand(64, 3).contiguous()
+    directions = torch.nn.functional.normalize(
+        torch.tensor([-1.0, 0.0, 0.0]) + 0.1 * torch.randn(64, 3, generator=gen), dim=-1
+    )
+    env = room.environment(directions).detach()
+    seen = []
+    for jitter in (False, True):
+        with torch.no_grad():
+            light = outside_light(room, origins, directions, 0.1, jitter=jitter, generator=gen)
+        # back colour = fog behind the sphere + what passes it times the environment
+        seen.append(light.front_trans * ((light.back_rgb - 0.7) / (env - 0.7)).mean(-1))
+    _, t_exact = _brute_force(room, origins[0], directions[0], 0.1, 5.0)
+    inner = ray_sphere(origins[:1], directions[:1], room.center, room.radius)
+    gap = float(inner[1] - inner[0])  # the sphere around the box is not the room's
+    exact = t_exact * float(torch.exp(torch.tensor(0.3 * gap)))
+    assert abs(float(seen[0][0]) - exact) < 0.03, (seen[0][0], exact)
+    assert abs(float(seen[1].mean() - seen[0].mean())) < 0.03

@@ -281,7 +281,7 @@ def test_cli_train_render_eval(sim_root: Path, tmp_path: Path, capsys):
 
 
 def test_scene_box_without_dataset_box_holds_the_surfaces(sim_root: Path):
-    from neoedit.training.trainer import scene_box
+    from neoedit.training.defaults import scene_box
 
     data = load_scene_data(sim_root / "removal_1" / "pre")
     data.scene_aabb_m = None  # as for Blender or COLMAP data
@@ -298,7 +298,8 @@ def test_scene_box_without_dataset_box_holds_the_surfaces(sim_root: Path):
 def test_loss_mask_excludes_pixels(sim_root: Path, tmp_path: Path):
     """nerfstudio mask_path: masked-out pixels contribute nothing to the loss."""
     from neoedit.scene import Scene, SceneMeta
-    from neoedit.training.trainer import Trainer, scene_box
+    from neoedit.training.defaults import scene_box
+    from neoedit.training.trainer import Trainer
 
     data = load_scene_data(sim_root / "removal_1" / "pre")
     meta = SceneMeta(
@@ -320,7 +321,8 @@ def _sparse_depth_trainer(sim_root: Path, tmp_path: Path, depth_rays: int, weigh
     """A tiny trainer on removal_1's pre scan whose depth is kept on 1 % of the pixels (as
     structure-from-motion points would give it); returns it and the scan's dense depth."""
     from neoedit.scene import Scene, SceneMeta
-    from neoedit.training.trainer import Trainer, scene_box
+    from neoedit.training.defaults import scene_box
+    from neoedit.training.trainer import Trainer
 
     data = load_scene_data(sim_root / "removal_1" / "pre")
     dense = data.depth_m.copy()

@@ -15,7 +15,7 @@ from rich.markup import escape
 from neoedit.data import load_scene_data
 from neoedit.data.downscale import DataConfig
 from neoedit.data.sparse_depth import is_sparse
-from neoedit.training.trainer import BOX_SOURCES, scene_box_and_source
+from neoedit.training.defaults import BOX_SOURCES, scene_box_and_source
 
 
 @dataclass

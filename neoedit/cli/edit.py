@@ -89,9 +89,11 @@ def start_edit(
     from neoedit.utils.device import resolve_device
 
     if sum(t is not None for t in target) != 1:
-        raise NeoError('give one of a prompt ("red mug"), --box BOX.json or --masks FOLDER, not two')
+        raise NeoError(
+            'give one of a prompt ("red mug"), --box BOX.json or --masks FOLDER, not two'
+        )
     if target[2] is not None and not Path(target[2]).is_dir():
-        raise NeoError(f"--masks {target[2]}: not a folder")
+        raise NeoError(f"--masks {target[2]}: not a folder")  # before the scene loads
     check_output(scene_dir, out, overwrite)
     return load_scene(scene_dir, resolve_device(device))
 

@@ -17,19 +17,27 @@ MASK_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 def read_object_masks(
     folder: Path, file_paths: list[str], cameras: Cameras
 ) -> dict[int, np.ndarray]:
-    """Camera index -> (H, W) bool mask (non-zero = the object) for every mask in
+    """Camera index -> (H, W) bool mask (the object: values over 127, or 1 in a 0/1 mask)
+    for every mask in
     ``folder`` whose name (without suffix) is that of a scan photo in ``file_paths``. A mask
     must have its photo's size; photos without a mask are simply not used."""
     folder = Path(folder)
     if not folder.is_dir():
         raise DataError(f"--masks {folder}: not a folder")
     by_stem = {Path(p).stem: i for i, p in enumerate(file_paths)}
+    if len(by_stem) != len(file_paths):
+        raise DataError(
+            f"--masks {folder}: two photos of the scan share a name in different folders; "
+            "masks cannot be matched to them by name"
+        )
     masks: dict[int, np.ndarray] = {}
     for path in sorted(folder.iterdir()):
         if path.suffix.lower() not in MASK_SUFFIXES or path.stem not in by_stem:
             continue
         i = by_stem[path.stem]
-        mask = read_label(path, "mask") > 0
+        label = read_label(path, "mask")
+        # half the type's range: JPEG noise around 0 is not the object
+        mask = label > (127 if label.max() > 1 else 0)
         h, w = int(cameras.height[i]), int(cameras.width[i])
         if mask.shape != (h, w):
             raise DataError(

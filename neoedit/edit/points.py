@@ -90,7 +90,13 @@ def box_from_masks(
     dev = scene.field.aabb.device
     cams_t = CameraTensors(cameras, dev)
     found = []
+    field_, boxes = scene.renderable()
     for i, mask in masks.items():
+        if mask.shape != (int(cameras.height[i]), int(cameras.width[i])):
+            raise NeoError(
+                f"the mask of camera {i} is {mask.shape[1]}x{mask.shape[0]}, the camera "
+                f"{int(cameras.width[i])}x{int(cameras.height[i])}"
+            )
         v, u = np.nonzero(mask)
         if len(v) == 0:
             continue
@@ -99,8 +105,8 @@ def box_from_masks(
         rays = cams_t.rays(
             cam, torch.as_tensor(v[pick], device=dev), torch.as_tensor(u[pick], device=dev)
         )
-        field_, boxes = scene.renderable()
-        out = render_chunked(field_, scene.grid, rays, scene.meta.render, scene.background, boxes)
+        black = torch.zeros(3, device=dev)  # depth and opacity only: no background needed
+        out = render_chunked(field_, scene.grid, rays, scene.meta.render, black, boxes)
         solid = out["accumulation"] > 0.5
         t = out["depth_z"] / rays.z_scale
         found.append((rays.origins + t[:, None] * rays.directions)[solid].cpu().numpy())

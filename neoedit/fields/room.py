@@ -49,9 +49,9 @@ class RoomConfig:
     it, on a forward-facing capture (spinnerf_1) the room painted the object just behind the
     box and the box stayed transparent over it."""
     density_bias: float = -6.0
-    """Initial pre-activation of the room's density (softplus): the room starts nearly
-    empty, so what the box can explain is learnt in the box, not painted on the room
-    behind it."""
+    """Offset of the pre-activation of the room's density (softplus, per metre): low, but
+    over the hundreds of metres to the far plane the room starts opaque far out (the
+    environment map shows only where it stays empty)."""
 
 
 def contract(y: torch.Tensor) -> torch.Tensor:
@@ -63,9 +63,8 @@ def contract(y: torch.Tensor) -> torch.Tensor:
 
 class RoomField(nn.Module):
     """Density and colour of the space around the scene box ``aabb`` (2,3). It answers at
-    any point; the renderer samples it only outside the box."""
+    any point; the renderer samples it only outside a sphere that holds the box."""
 
-    box: torch.Tensor  # (2,3) the scene box, world metres
     center: torch.Tensor  # (3,)
     radius: torch.Tensor  # () half the box diagonal [m]
 
@@ -73,7 +72,6 @@ class RoomField(nn.Module):
         super().__init__()
         self.cfg = cfg
         box = torch.as_tensor(aabb, dtype=torch.float32)
-        self.register_buffer("box", box.clone(), persistent=False)
         self.register_buffer("center", 0.5 * (box[0] + box[1]), persistent=False)
         self.register_buffer("radius", 0.5 * (box[1] - box[0]).norm(), persistent=False)
         self.encoding = HashGridEncoding(cfg.hashgrid, seed=seed + 1)

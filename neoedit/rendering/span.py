@@ -48,6 +48,8 @@ class OutsideSegments:
     back_rgb: torch.Tensor  # (N,3) colour of [s1, b] over the background
     back_acc: torch.Tensor  # (N,) opacity of [s1, b]
     back_depth: torch.Tensor  # (N,) sum of weight * ray distance over [s1, b] (unit light)
+    room_rgb: torch.Tensor  # (N,3) premultiplied colour of a room in front of the box (or 0)
+    room_trans: torch.Tensor  # (N,) the fraction of the box that room lets through (or 1)
 
     def __getitem__(self, index: torch.Tensor | slice) -> OutsideSegments:
         return OutsideSegments(*(getattr(self, f.name)[index] for f in dataclasses.fields(self)))
@@ -87,8 +89,8 @@ def outside_segments(
         valid = ray_intervals(field, chunk, cfg.near_m)
         a, b = valid.starts[:, 0], valid.ends[:, 0]
         s0, s1 = region_span(chunk, boxes, a, b)
-        # a room around the box is outermost: its front over the box's front, its back
-        # behind the box's back
+        # a room around the box is outermost: its front is kept apart (render_span puts it
+        # over the rest; accumulation and depth stay the box's), its back is behind the box
         light = outside_light(background, chunk.origins, chunk.directions, cfg.near_m)
         black = torch.zeros(3, device=a.device)
         front = march_render(
@@ -101,12 +103,14 @@ def outside_segments(
             OutsideSegments(
                 s0,
                 s1,
-                light.around(front["rgb"]),
-                light.front_trans * (1.0 - front["accumulation"]),
+                front["rgb"],
+                1.0 - front["accumulation"],
                 front["depth"] * front["accumulation"],
                 back["rgb"],
                 back["accumulation"],
                 back["depth"] * back["accumulation"],
+                torch.as_tensor(light.front_rgb, device=a.device).expand(len(a), 3),
+                torch.as_tensor(light.front_trans, device=a.device).expand(len(a)),
             )
         )
     return OutsideSegments(
@@ -138,9 +142,10 @@ def render_span(
     acc_in = inner["accumulation"]
     weighted_in = (inner["weights"] * inner["t_mid"]).sum(-1)
     t_front = outside.front_trans
-    rgb = outside.front_rgb + t_front[:, None] * (
+    box_rgb = outside.front_rgb + t_front[:, None] * (
         inner["rgb"] + (1.0 - acc_in)[:, None] * outside.back_rgb
     )
+    rgb = outside.room_rgb + outside.room_trans[:, None] * box_rgb  # depth, acc: the box's
     acc = (1.0 - t_front) + t_front * (acc_in + (1.0 - acc_in) * outside.back_acc)
     weighted = outside.front_depth + t_front * (weighted_in + (1.0 - acc_in) * outside.back_depth)
     depth = weighted / acc.clamp_min(1e-6)

@@ -12,10 +12,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from neoedit.cameras.cameras import orbit_center
 from neoedit.cameras.rays import CameraTensors
 from neoedit.data import SceneData, load_scene_data
-from neoedit.data.bounds import alpha_hull_box
 from neoedit.data.downscale import DataConfig
 from neoedit.data.scan import scan_from_record, scan_record
 from neoedit.data.sparse_depth import is_sparse, sparse_pixels
@@ -30,6 +28,13 @@ from neoedit.rendering.volume import distortion_loss, opacity_penalty
 from neoedit.scene import Scene, SceneMeta, load_scene, save_scene
 from neoedit.storage import find_store, is_store
 from neoedit.training.appearance import PhotoAppearance
+from neoedit.training.defaults import (
+    AUTO_SPARSITY,
+    _grown,
+    field_config,
+    median_camera_distance,
+    scene_box_and_source,
+)
 from neoedit.utils.device import resolve_device
 from neoedit.utils.optim import field_param_groups, load_optimizer_state, make_adam
 from neoedit.utils.progress import make_progress
@@ -84,85 +89,6 @@ class TrainConfig:
     checkpoint_every: int = 1000
     """Steps between checkpoints (0 = only at the end)."""
     seed: int = 0
-
-
-def median_camera_distance(data: SceneData) -> float:
-    """Median distance [m] from the cameras to the point they all look at."""
-    center = orbit_center(data.cameras)
-    return float(np.median(np.linalg.norm(data.cameras.camera_to_world[:, :3, 3] - center, axis=1)))
-
-
-def _field_config(
-    cfg: RadianceFieldConfig | None, data: SceneData, box: np.ndarray
-) -> RadianceFieldConfig:
-    """The field config with its data-dependent defaults resolved: a learned background for
-    photos (no alpha channel, or an alpha that is opaque everywhere), and a room field
-    around the scene ``box`` (2,3) when most cameras look at it from outside."""
-    cfg = cfg or RadianceFieldConfig()
-    photos = data.alpha is None or bool((data.alpha == 255).all())
-    if cfg.learned_background is None:
-        cfg = dataclasses.replace(cfg, learned_background=photos)
-    if cfg.room is None:
-        room = photos and bool(cfg.learned_background) and not cfg.closed_bottom
-        cfg = dataclasses.replace(cfg, room=room and cameras_outside(data, box) > 0.5)
-    return cfg
-
-
-def cameras_outside(data: SceneData, box: np.ndarray) -> float:
-    """Fraction of the cameras whose centre lies outside ``box`` (2,3). With the cameras
-    inside the box (a forward-facing capture), a room behind the box took the objects from
-    it (spinnerf_1: box opacity over the object 0.06 with the room, 0.28 without, 2 minutes
-    of training), so the room is used only for captures that look at the box from outside
-    (beer_can: +3.1 dB held out in 3 minutes, benchmarks/RESULTS.md)."""
-    centres = data.cameras.camera_to_world[:, :3, 3]
-    inside = ((centres >= box[0]) & (centres <= box[1])).all(-1)
-    return float(1.0 - inside.mean())
-
-
-def scene_box(data: SceneData, margin_m: float = 0.02) -> list[list[float]]:
-    """The scene box (see :func:`scene_box_and_source`) grown by ``margin_m``."""
-    return _grown(scene_box_and_source(data)[0], margin_m)
-
-
-def _grown(box: np.ndarray, margin_m: float = 0.02) -> list[list[float]]:
-    return [(box[0] - margin_m).tolist(), (box[1] + margin_m).tolist()]
-
-
-BOX_SOURCES = {
-    "dataset": "the dataset",
-    "alpha": "the visual hull of the images' alpha",
-    "cameras": "a cube around the cameras' look-at point (no box in the data)",
-}
-"""Where a scene box can come from (key -> words for ``neo info``)."""
-
-AUTO_SPARSITY = {"dataset": 0.0, "alpha": 0.01, "cameras": 0.1}
-"""Automatic ``sparsity_loss_weight`` per box source. Measured: on a loose cube around the
-cameras fog explains the training views without it (0.1); on the tight visual-hull box of a
-Blender-format scene 0.1 suppresses the object's own density (26.02 dB held out at 3000
-steps against 26.49 at 1500 with 0.01); with a dataset box it only slows convergence."""
-
-
-def scene_box_and_source(data: SceneData) -> tuple[np.ndarray, str]:
-    """(2,3) scene box and where it came from (a :data:`BOX_SOURCES` key): the dataset's own
-    (``scene_aabb``, instant-ngp's ``aabb_scale``) if given; else, for RGBA data with
-    transparent pixels, the bounds of the silhouettes' visual hull (neoedit.data.bounds);
-    otherwise a cube around the point the cameras look at, reaching out to the median camera
-    distance (so it holds what an inward-looking capture sees), joined with the camera
-    bounds."""
-    if data.scene_aabb_m is not None:
-        return np.asarray(data.scene_aabb_m, dtype=np.float64), "dataset"
-    center = orbit_center(data.cameras)
-    radius = median_camera_distance(data)
-    if data.alpha is not None:
-        cube = np.stack([center - radius, center + radius])
-        hull = alpha_hull_box(data.cameras, data.alpha, data.split["train"], cube)
-        if hull is not None:
-            return hull, "alpha"
-    cam_box = data.camera_aabb_m()
-    box = np.stack(
-        [np.minimum(cam_box[0], center - radius), np.maximum(cam_box[1], center + radius)]
-    )
-    return box, "cameras"
 
 
 def _fingerprint(data: SceneData, frames: int = 8) -> dict[str, list[list[float]]]:
@@ -301,11 +227,7 @@ class Trainer:
             grid.update(field.density, step, self.generator)
         img, v, u, target, depth_gt = self.batch()
         rays = self.cams.rays(self.train_idx[img], v, u)
-        background = self.scene.background
-        if isinstance(background, RoomField) and self.progress(step, seconds) < (
-            meta.field.room_field.warmup
-        ):
-            background = background.environment  # the box learns what it can explain first
+        background = self.background(step, seconds)
         if self.alpha is not None and isinstance(background, torch.Tensor):
             # the data was composited over the scene background: swap it for a random colour
             transparency = 1.0 - self.alpha[img, v, u].float()[:, None] / 255.0
@@ -369,7 +291,18 @@ class Trainer:
         rebuild_grid(self.scene.grid, self.scene.field.density, seed=self.cfg.seed)
 
     @torch.no_grad()
-    def evaluate(self) -> float | None:
+    def background(self, step: int, seconds: float):
+        """The scene's background as this step trains it: a room's environment map alone
+        during the room's warm-up (the box learns what it can explain first)."""
+        background = self.scene.background
+        warmup = self.scene.meta.field.room_field.warmup
+        if isinstance(background, RoomField) and self.progress(step, seconds) < warmup:
+            return background.environment
+        return background
+
+    def evaluate(self, step: int | None = None, seconds: float = 0.0) -> float | None:
+        """Held-out PSNR of the views the config names, rendered as step ``step`` trains
+        (None: the scene as it renders)."""
         test = self.data.split.get("test", np.empty(0, np.int64))
         if len(test) == 0 or self.cfg.eval_views == 0:
             return None
@@ -386,7 +319,7 @@ class Trainer:
                 self.data.height,
                 self.data.width,
                 self.scene.meta.render,
-                self.scene.background,
+                self.scene.background if step is None else self.background(step, seconds),
             )
             gt = torch.as_tensor(self.data.images[i], device=self.device).float() / 255.0
             errs.append(float(torch.mean((out["rgb"] - gt) ** 2)))
@@ -414,7 +347,7 @@ class Trainer:
                 if last:
                     self.finish_grid()
                 if (cfg.eval_every and (step + 1) % cfg.eval_every == 0) or last:
-                    eval_psnr = self.evaluate()
+                    eval_psnr = self.evaluate(step, t_train)
                     meta.history.append(
                         {
                             "step": step + 1,
@@ -468,7 +401,7 @@ def train(
         cfg = dataclasses.replace(cfg, sparsity_loss_weight=AUTO_SPARSITY[box_source])
     if cfg.depth_loss_weight < 0:
         cfg = dataclasses.replace(cfg, depth_loss_weight=0.1 if data.depth_m is not None else 0.0)
-    field_cfg = _field_config(field_cfg, data, box)
+    field_cfg = field_config(field_cfg, data, box)
     if resume:
         scene = load_scene(out, dev)
         _check_same_scan(scene, data)

@@ -39,6 +39,7 @@ def field_param_groups(
     ``background_head.encoding.*``) at ``lr`` and
     everything else (the MLPs) at ``lr * mlp_lr_factor``; groups without parameters (a
     frozen part) are left out."""
+
     def table(name: str) -> bool:
         return name.startswith("encoding.") or ".encoding." in name
 
