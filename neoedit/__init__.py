@@ -16,10 +16,8 @@ does not import torch.
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
-
 from neoedit.errors import NeoError
+from neoedit.utils.lazy import lazy_exports
 from neoedit.utils.threads import set_wait_policy
 
 # before torch and numba load their OpenMP runtimes (see neoedit.utils.threads)
@@ -40,7 +38,4 @@ __all__ = ["NeoError", "__version__", *sorted(_EXPORTS)]
 __version__ = "0.1.0"
 
 
-def __getattr__(name: str) -> Any:
-    if name in _EXPORTS:
-        return getattr(importlib.import_module(_EXPORTS[name]), name)
-    raise AttributeError(f"module 'neoedit' has no attribute {name!r}")
+__getattr__ = lazy_exports(__name__, _EXPORTS)

@@ -57,10 +57,11 @@ class EditableScene:
 
     def remove(self, target: Target, cfg=None, query=None) -> EditableScene:
         """The scene without ``target``, what it hid inpainted (``cfg``: a RemoveConfig)."""
-        from neoedit.edit.remove import RemoveConfig, remove
+        from neoedit.edit.pipeline import apply_edit
+        from neoedit.edit.remove import Remove, RemoveConfig
 
         boxes, prompt = self._boxes(target, query)
-        child, _ = remove(self.scene, boxes, cfg or RemoveConfig(), prompt)
+        child = apply_edit(self.scene, Remove(boxes, cfg or RemoveConfig(), prompt))
         return EditableScene(child, self.source)
 
     def move(
@@ -73,12 +74,14 @@ class EditableScene:
     ) -> EditableScene:
         """The scene with ``target`` moved by ``translate`` (world metres) and turned by
         ``yaw_deg`` about the vertical through its box centre (``cfg``: a MoveConfig)."""
-        from neoedit.edit.relocate import Motion, MoveConfig, move
+        from neoedit.edit.pipeline import apply_edit
+        from neoedit.edit.relocate import Motion, Move, MoveConfig
 
         boxes, prompt = self._boxes(target, query)
         shift = np.asarray(translate, dtype=np.float64).reshape(3)
         motions = [Motion(b, motion_about(np.asarray(b.center_m), shift, yaw_deg)) for b in boxes]
-        return EditableScene(move(self.scene, motions, cfg or MoveConfig(), prompt), self.source)
+        child = apply_edit(self.scene, Move(motions, cfg or MoveConfig(), prompt))
+        return EditableScene(child, self.source)
 
     def render(self, cameras: Cameras | None = None, index: int = 0) -> np.ndarray:
         """(H, W, 3) uint8 RGB of camera ``index`` of ``cameras`` (default: the scan's)."""

@@ -241,13 +241,16 @@ def _sync_patches(scene: Scene) -> None:
         scene.meta.patches = []
     else:
         known = scene.meta.patches
-        scene.meta.patches = [
-            {
+        scene.meta.patches = []
+        transforms = scene.field.part_transforms()
+        for i, region in enumerate(scene.field.regions):
+            entry: dict[str, Any] = {
                 "region": [b.to_dict() for b in region],
                 "version": known[i]["version"] if i < len(known) else scene.meta.version_id,
             }
-            for i, region in enumerate(scene.field.regions)
-        ]
+            if transforms[i] is not None:
+                entry["transform"] = np.round(transforms[i], 12).tolist()
+            scene.meta.patches.append(entry)
 
 
 def _scene_groups(scene: Scene) -> dict[str, dict[str, torch.Tensor]]:
@@ -350,7 +353,11 @@ def _apply_groups(scene: Scene, groups: dict[str, dict[str, torch.Tensor]], path
                     patched.patches[i].load_state_dict(state)
                     continue
                 region = [OrientedBox.from_dict(b) for b in p["region"]]
-                patched.add_patch(region).load_state_dict(state)
+                if "transform" in p:  # a carried part: frozen weights under a motion
+                    motion = np.asarray(p["transform"], dtype=np.float64)
+                    patched.add_carried(region, motion, base).load_state_dict(state)
+                else:
+                    patched.add_patch(region).load_state_dict(state)
         scene.grid.density.copy_(tensors["grid.density"])
         scene.grid.n_updates.copy_(tensors["grid.n_updates"][0])
         scene.grid.refresh_mask()

@@ -284,6 +284,23 @@ def test_estimate_up_from_camera_poses_without_plane(sim_root: Path):
     assert tilted @ up > 0.99  # no dominant plane in noise -> camera up
 
 
+def test_estimate_up_takes_the_ground_not_a_larger_wall(sim_root: Path):
+    """A wall with more surface points than the floor (a room seen from inside the box, a
+    can's side) is not the ground: the up vector is the floor's normal, tilted or not."""
+    data = load_scene_data(sim_root / "removal_1" / "pre")
+    rng = np.random.default_rng(0)
+    tilt = np.radians(12.0)
+    floor_normal = np.array([np.sin(tilt), 0.0, np.cos(tilt)])
+    uv = rng.uniform(-0.3, 0.3, size=(400, 2))
+    e1 = np.cross([0.0, 1.0, 0.0], floor_normal)
+    floor = uv[:, :1] * e1 + uv[:, 1:] * np.array([0.0, 1.0, 0.0])
+    wall = np.column_stack(
+        [np.full(900, 0.35), rng.uniform(-0.3, 0.3, 900), rng.uniform(0.0, 0.4, 900)]
+    )
+    up = estimate_up(data.cameras, np.concatenate([floor, wall]))
+    assert up @ floor_normal > 0.999
+
+
 # --- CLIP / DINO backends on tiny random models built here (real loading code) -------------
 
 

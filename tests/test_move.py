@@ -477,41 +477,44 @@ def _fast_move_config(**kw) -> MoveConfig:
 def test_move_distils_both_regions_or_reuses_the_removal_patch(
     move_scene: Path, sim_root: Path, monkeypatch: pytest.MonkeyPatch, reuse: bool
 ):
-    """By default the distillation trains two patches, the source region's and the target
-    box's; ``reuse_removal_patch`` keeps the removal's own patch (the teacher there) as the
+    """With the target distilled (``carry`` off, the paper's design) the distillation trains
+    two patches, the source region's and the target box's; ``reuse_removal_patch`` keeps the removal's own patch (the teacher there) as the
     source part and trains only the target's. Either way the version is the parent plus two
     patches, rays cross both regions, the source is emptied and the target filled."""
-    import neoedit.edit.relocate as relocate
+    import neoedit.edit.move_distill as move_distill
 
     calls: list[tuple[int, list[OrientedBox]]] = []
-    real = relocate.distill
+    real = move_distill.distill
 
     def recording(students, *args, **kwargs):  # type: ignore[no-untyped-def]
         calls.append((len(students), list(args[4])))
         return real(students, *args, **kwargs)
 
-    monkeypatch.setattr(relocate, "distill", recording)
+    monkeypatch.setattr(move_distill, "distill", recording)
     built = []  # the teacher, the parent's field with the removal's patch, timings
-    real_teacher = relocate._teacher
+    real_teacher = move_distill._teacher
     monkeypatch.setattr(
-        relocate, "_teacher", lambda *a, **k: built.append(real_teacher(*a, **k)) or built[-1]
+        move_distill, "_teacher", lambda *a, **k: built.append(real_teacher(*a, **k)) or built[-1]
     )
     parent = load_scene(move_scene)
     action = _action(sim_root)
     text = load_text_encoder(parent.meta.language.text)
     found = query_scene(parent, action["object"], text, SPARSE)
     motion = Motion(found.box, np.asarray(action["transform_world"]))
-    child = move(parent, [motion], _fast_move_config(reuse_removal_patch=reuse))
+    child = move(parent, [motion], _fast_move_config(reuse_removal_patch=reuse, carry=False))
     record = child.meta.edits[-1]
     source = OrientedBox.from_dict(record["source_boxes"][0])
     target = OrientedBox.from_dict(record["target_boxes"][0])
     assert isinstance(child.field, PatchedField) and len(child.field.parts) == 2
-    (source_region,), (target_region,) = child.field.regions
-    assert source_region.center_m[:2] == pytest.approx(source.center_m[:2], abs=1e-6)
+    # the source region: the source box and a slab for each shadow found around it
+    source_regions, (target_region,) = child.field.regions
+    assert len(source_regions) == 1 + len(record["shadow_boxes"])
+    assert source_regions[0].center_m[:2] == pytest.approx(source.center_m[:2], abs=1e-6)
     assert target_region.to_dict() == target.to_dict()
     ((n_students, boxes),) = calls
     assert n_students == (1 if reuse else 2)
-    assert [b.to_dict() for b in boxes] == [source_region.to_dict(), target.to_dict()]
+    expected = [*source_regions, target]
+    assert [b.to_dict() for b in boxes] == [b.to_dict() for b in expected]
     removal = built[0][1].parts[-1].state_dict()
     kept = child.field.parts[0].state_dict()
     assert all(torch.equal(v, removal[k]) for k, v in kept.items()) == reuse
@@ -556,3 +559,60 @@ def test_the_python_facade_loads_moves_removes_renders_and_saves(move_scene: Pat
         neo.save(s3, move_scene, overwrite=True)  # never over the version it started from
     with pytest.raises(neo.NeoError, match="camera index"):
         s3.render(index=10_000)
+
+
+@pytest.mark.parametrize("reuse", [False, True])
+def test_a_carried_move_keeps_the_object_and_distils_only_the_hole(
+    move_scene: Path, sim_root: Path, monkeypatch: pytest.MonkeyPatch, reuse: bool
+):
+    """By default the target box is the parent's own field under the motion, exactly (no
+    training there): the source region's patch is the only student, and with
+    ``reuse_removal_patch`` nothing is distilled at all. Moved again, the carried object
+    composes the two motions over the scan's weights."""
+    import neoedit.edit.move_distill as move_distill
+
+    calls: list[int] = []
+    real = move_distill.distill
+
+    def recording(students, *args, **kwargs):  # type: ignore[no-untyped-def]
+        calls.append(len(students))
+        return real(students, *args, **kwargs)
+
+    monkeypatch.setattr(move_distill, "distill", recording)
+    parent = load_scene(move_scene)
+    action = _action(sim_root)
+    text = load_text_encoder(parent.meta.language.text)
+    found = query_scene(parent, action["object"], text, SPARSE)
+    transform = np.asarray(action["transform_world"])
+    child = move(
+        parent, [Motion(found.box, transform)], _fast_move_config(reuse_removal_patch=reuse)
+    )
+    assert calls == ([] if reuse else [1])
+    assert isinstance(child.field, PatchedField)
+    source_t, target_t = child.field.part_transforms()
+    assert source_t is None and np.allclose(target_t, transform)
+    target = OrientedBox.from_dict(child.meta.edits[-1]["target_boxes"][0])
+    assert [b.to_dict() for b in child.field.regions[-1]] == [target.to_dict()]
+    # inside the target the child answers what the parent answered at T^-1 x
+    pts = torch.as_tensor(
+        (np.random.default_rng(0).random((500, 3)) - 0.5)
+        * np.asarray(target.size_m)
+        * 0.9
+        @ target.rotation.T
+        + np.asarray(target.center_m),
+        dtype=torch.float32,
+    )
+    back = (pts - torch.as_tensor(transform[:3, 3], dtype=torch.float32)) @ torch.as_tensor(
+        transform[:3, :3], dtype=torch.float32
+    )
+    with torch.no_grad():
+        assert torch.allclose(
+            child.field.density(pts), parent.field.density(back), rtol=1e-4, atol=1e-4
+        )
+    # the moved object moved back: one carried part over the scan's weights, motions composed
+    again = move(
+        child,
+        [Motion(target, np.linalg.inv(transform))],
+        _fast_move_config(reuse_removal_patch=True),
+    )
+    assert np.allclose(again.field.part_transforms()[-1], np.eye(4), atol=1e-6)

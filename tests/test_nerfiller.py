@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 import torch
 
+from neoedit.bench.nerfiller import NerfillerConfig, group_windows, inpaint_depth, nerfiller
 from neoedit.data import load_scene_data
 from neoedit.edit.history import new_version
-from neoedit.edit.nerfiller import NerfillerConfig, group_windows, inpaint_depth, nerfiller
 from neoedit.edit.points import box_points
 from neoedit.errors import NeoError
 from neoedit.eval.evaluate import evaluate

@@ -6,9 +6,11 @@ from __future__ import annotations
 
 import dataclasses
 
+import pytest
 import torch
 
 from neoedit.cameras.rays import RayBundle
+from neoedit.errors import NeoError
 from neoedit.fields.hashgrid import HashGridConfig
 from neoedit.fields.radiance import RadianceField
 from neoedit.fields.room import RoomConfig, RoomField, contract
@@ -186,9 +188,14 @@ def test_photos_from_outside_the_box_get_a_room_and_photos_from_inside_do_not(tm
     auto = dataclasses.replace(TINY_FIELD, room=None)
     assert field_config(auto, data, around_table).room is True
     assert field_config(auto, data, whole_room).room is False
-    assert field_config(None, data, around_table).room is False  # opt-in for now
+    assert field_config(None, data, around_table).room is False  # opt-in (RoomConfig's doc)
     forced = dataclasses.replace(TINY_FIELD, room=True)
     assert field_config(forced, data, whole_room).room is True
+    closed = dataclasses.replace(auto, closed_bottom=True)
+    assert field_config(closed, data, around_table).room is False
+    for clash in ({"closed_bottom": True}, {"learned_background": False}):
+        with pytest.raises(NeoError, match="--field.room True"):
+            field_config(dataclasses.replace(forced, **clash), data, around_table)
 
 
 class FogRoom(RoomField):

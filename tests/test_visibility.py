@@ -90,3 +90,20 @@ def test_a_box_reaching_under_the_table_is_seated_on_it():
     high = OrientedBox((0.0, 0.0, 0.012), (0.1, 0.04, 0.02), 20.0)  # already above: unchanged
     assert seated_on_support(scene, high) == high
     assert seated_on_support(SimpleNamespace(surface_points_m=None), low) == low
+
+
+def test_grow_mask_is_a_disc_dilation():
+    """Growing a hole is a dilation by a disc of the radius (brute force on a small image)."""
+    import numpy as np
+
+    from neoedit.edit.refine import grow_mask
+
+    rng = np.random.default_rng(0)
+    mask = rng.random((40, 50)) > 0.97
+    for radius in (0.0, 1.5, 4.0, 9.3):
+        grown = grow_mask(mask, radius)
+        ys, xs = np.nonzero(mask)
+        yy, xx = np.mgrid[:40, :50]
+        d = np.sqrt((yy[..., None] - ys) ** 2 + (xx[..., None] - xs) ** 2).min(-1)
+        np.testing.assert_array_equal(grown, d <= radius)
+    assert not grow_mask(np.zeros((5, 5), bool), 3.0).any()

@@ -26,8 +26,9 @@ import numpy as np
 
 from neoedit.cameras.rays import CameraTensors
 from neoedit.data import SceneData, load_scene_data
-from neoedit.edit.relocate import Motion, MoveConfig, check_motions, distil_removal, move
-from neoedit.edit.remove import RemoveConfig, remove
+from neoedit.edit.pipeline import Edit, apply_edit
+from neoedit.edit.relocate import Motion, Move, MoveConfig, SealRemove, check_motions
+from neoedit.edit.remove import Remove, RemoveConfig
 from neoedit.errors import NeoError
 from neoedit.eval.evaluate import evaluate
 from neoedit.geometry import OrientedBox
@@ -62,6 +63,13 @@ ABLATIONS: dict[str, Callable[[MoveConfig], MoveConfig]] = {
         ),
     ),
     "field-distill-only": lambda c: dataclasses.replace(c, field_only=True),
+    "no-shadow": lambda c: dataclasses.replace(
+        c,
+        remove=dataclasses.replace(
+            c.remove, shadow=dataclasses.replace(c.remove.shadow, enabled=False)
+        ),
+    ),
+    "distil-target": lambda c: dataclasses.replace(c, carry=False),
 }
 ASSEMBLY_METHODS = ("neo", "seal3d", "oracle")
 ALL_METHODS = tuple(dict.fromkeys((*REMOVAL_METHODS, *MOVE_METHODS, *ABLATIONS)))
@@ -80,6 +88,8 @@ LABELS = {
     "no-grid-inpaint": "w/o 2x2 grid inpainting",
     "no-mask-cond": "w/o mask-conditioned training",
     "field-distill-only": "field distillation only",
+    "no-shadow": "w/o shadow removal at the source",
+    "distil-target": "moved object distilled (the paper's student), not carried",
 }
 
 
@@ -158,20 +168,21 @@ def render_view(scene: Scene, data: SceneData) -> np.ndarray:
     return (rgb.clamp(0, 1).numpy() * 255).round().astype(np.uint8)
 
 
-def _removed(
-    method: str, pre: Scene, box: OrientedBox, inp: SceneInputs, name: str, scan: SceneData | None
-) -> Scene:
+def removal_edit(
+    method: str, box: OrientedBox, inp: SceneInputs, name: str, scan: SceneData | None
+) -> Edit:
+    """The typed edit of one removal method of Table I (run by :func:`apply_edit`)."""
     if method in ("resample", "suppress", "neo"):
-        return remove(pre, [box], remove_config(method, inp.edit_scale), name)[0]
+        return Remove([box], remove_config(method, inp.edit_scale), name)
     if method == "seal3d":
-        return distil_removal(pre, [box], move_config("seal3d", inp.edit_scale), name)
-    from neoedit.edit.nerfiller import NerfillerConfig, nerfiller
+        return SealRemove([box], move_config("seal3d", inp.edit_scale), name)
+    from neoedit.bench.nerfiller import NerfillerConfig, NerfillerRemove
 
     # NeRFiller retrains the whole field: the pre scan's own budget, edit_scale or not
     cfg = NerfillerConfig(depth=method == "nerfiller", seed=inp.seed)
     if scan is None:
         raise NeoError("the NeRFiller-style baseline needs the pre scan's images")
-    return nerfiller(pre, scan, [box], cfg, name)
+    return NerfillerRemove(scan, [box], cfg, name)
 
 
 def run_removal(method: str, inp: SceneInputs) -> tuple[dict[str, Any], np.ndarray]:
@@ -180,7 +191,8 @@ def run_removal(method: str, inp: SceneInputs) -> tuple[dict[str, Any], np.ndarr
     def edit(pre: Scene, box: OrientedBox, action: dict) -> Callable[[], Scene]:
         # the scan's images (NeRFiller-style retraining) are read before the clock starts
         scan = load_scene_data(inp.data / "pre") if method.startswith("nerfiller") else None
-        return lambda: _removed(method, pre, box, inp, action["object"], scan)
+        removal = removal_edit(method, box, inp, action["object"], scan)
+        return lambda: apply_edit(pre, removal)
 
     return _run_action(method, inp, edit, moved=False)
 
@@ -190,17 +202,18 @@ def run_move(method: str, inp: SceneInputs) -> tuple[dict[str, Any], np.ndarray]
 
     def edit(pre: Scene, box: OrientedBox, action: dict) -> Callable[[], Scene]:
         motion = checked_motion(pre, box, action["transform_world"])
-        return lambda: move(pre, [motion], move_config(method, inp.edit_scale), action["object"])
+        relocation = Move([motion], move_config(method, inp.edit_scale), action["object"])
+        return lambda: apply_edit(pre, relocation)
 
     return _run_action(method, inp, edit, moved=True)
 
 
-Edit = Callable[[Scene, OrientedBox, dict], Callable[[], Scene]]
+TimedEdit = Callable[[Scene, OrientedBox, dict], Callable[[], Scene]]
 """(pre scene, found box, action) -> the timed edit (what it needs is prepared untimed)."""
 
 
 def _run_action(
-    method: str, inp: SceneInputs, edit: Edit, moved: bool
+    method: str, inp: SceneInputs, edit: TimedEdit, moved: bool
 ) -> tuple[dict[str, Any], np.ndarray]:
     """The scene's one action by ``method``: the pre scene as it is ('pre-edit'), the
     oracle, or ``edit`` of the box found for the object's name; evaluated on the post scan
@@ -252,7 +265,8 @@ def run_assembly(method: str, inp: SceneInputs) -> tuple[dict[str, Any], np.ndar
                 break
             row["query_iou"] = round(box_iou_3d(box, source), 3)
             t0 = time.perf_counter()
-            chain = move(chain, [motion], move_config(method, inp.edit_scale), action["object"])
+            edit = Move([motion], move_config(method, inp.edit_scale), action["object"])
+            chain = apply_edit(chain, edit)
             row["seconds"] = round(time.perf_counter() - t0, 1)
             current = chain
         row.update(evaluate(current, post, "test", [source], [target], max_views=inp.eval_views))

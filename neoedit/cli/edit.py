@@ -51,7 +51,8 @@ class RemoveCommand:
 
     def run(self) -> None:
         self.query.check()  # before any loading or training
-        from neoedit.edit.remove import remove, write_report
+        from neoedit.edit.pipeline import apply_edit
+        from neoedit.edit.remove import Remove, write_report
         from neoedit.scene import save_scene
 
         with edit_lock(self.out):
@@ -63,9 +64,12 @@ class RemoveCommand:
                 self.device,
             )
             boxes = find_boxes(scene, self.prompt, self.box, self.query, self.masks)
-            child, strips = remove(scene, boxes, self.edit, self.prompt)
+            removal = Remove(boxes, self.edit, self.prompt)
+            child = apply_edit(scene, removal)
             save_scene(
-                self.out, child, extras=lambda d: write_report(d / "report", scene, child, strips)
+                self.out,
+                child,
+                extras=lambda d: write_report(d / "report", scene, child, removal.strips),
             )
         rec = child.meta.edits[-1]
         console.print(
@@ -169,7 +173,8 @@ class MoveCommand:
 
     def run(self) -> None:
         self.query.check()  # before any loading or training
-        from neoedit.edit.relocate import Motion, move
+        from neoedit.edit.pipeline import apply_edit
+        from neoedit.edit.relocate import Motion, Move
         from neoedit.edit.remove import write_report
         from neoedit.scene import save_scene
 
@@ -185,7 +190,7 @@ class MoveCommand:
             boxes = find_boxes(scene, self.prompt, self.box, self.query, self.masks)
             motions = [Motion(b, motion_for(b, transform)) for b in boxes]
             cfg = dataclasses.replace(self.edit, method=self.method, preview=self.preview)
-            child = move(scene, motions, cfg, self.prompt)
+            child = apply_edit(scene, Move(motions, cfg, self.prompt))
             save_scene(
                 self.out, child, extras=lambda d: write_report(d / "report", scene, child, [])
             )

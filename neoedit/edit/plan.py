@@ -29,8 +29,9 @@ from pydantic import BaseModel, ConfigDict, ValidationError, model_validator
 
 from neoedit.edit.checks import check_edit_boxes
 from neoedit.edit.inpaint import Inpainter
-from neoedit.edit.relocate import Motion, MoveConfig, move
-from neoedit.edit.remove import RemoveConfig, remove
+from neoedit.edit.pipeline import Edit, apply_edit
+from neoedit.edit.relocate import Motion, Move, MoveConfig
+from neoedit.edit.remove import Remove, RemoveConfig
 from neoedit.errors import NeoError
 from neoedit.geometry import OrientedBox, is_rigid, motion_about
 from neoedit.language.relevancy import split_prompts
@@ -188,10 +189,16 @@ def apply_action(
     inpainter: Inpainter | None = None,
 ) -> Scene:
     """One step of a plan on ``scene`` (left unchanged): the new version."""
+    return apply_edit(scene, action_edit(action, boxes, cfg, inpainter))
+
+
+def action_edit(
+    action: Action, boxes: list[OrientedBox], cfg: PlanConfig, inpainter: Inpainter | None = None
+) -> Edit:
+    """The typed edit of one plan step on the objects in ``boxes``."""
     if action.type == "remove":
         rcfg = cfg.remove if not cfg.preview else dataclasses.replace(cfg.remove, inpaint=False)
-        child, _ = remove(scene, boxes, rcfg, action.prompt, inpainter)
-        return child
+        return Remove(boxes, rcfg, action.prompt, inpainter)
     specs = action.motions or []
     if len(specs) not in (1, len(boxes)):
         raise NeoError(
@@ -201,7 +208,7 @@ def apply_action(
     specs = specs * len(boxes) if len(specs) == 1 else specs
     motions = [Motion(b, s.matrix(b)) for b, s in zip(boxes, specs, strict=True)]
     mcfg = dataclasses.replace(cfg.move, preview=cfg.preview)
-    return move(scene, motions, mcfg, action.prompt, inpainter)
+    return Move(motions, mcfg, action.prompt, inpainter)
 
 
 def plan_boxes(action: Action) -> list[OrientedBox] | None:

@@ -15,7 +15,6 @@ version's query cloud, so the removed object can no longer be found.
 from __future__ import annotations
 
 import dataclasses
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -24,14 +23,17 @@ import torch
 
 from neoedit.cameras import Cameras
 from neoedit.edit.checks import check_edit_boxes
-from neoedit.edit.history import check_output, new_version
+from neoedit.edit.history import check_output
 from neoedit.edit.inpaint import Inpainter, make_inpainter
-from neoedit.edit.language_update import LanguageEdit, update_language
+from neoedit.edit.language_update import LanguageEdit
 from neoedit.edit.masks import grown_box, grown_box_clear_of
+from neoedit.edit.pipeline import Prepared, Timings, apply_edit
 from neoedit.edit.refine import RefineConfig, refine_removal
 from neoedit.edit.settle import settle
+from neoedit.edit.shadow import ShadowConfig, shadow_slabs
 from neoedit.edit.views import VirtualViewConfig, concat_cameras, virtual_cameras
 from neoedit.errors import NeoError
+from neoedit.fields.composed import MaskedField
 from neoedit.fields.patched import edit_region
 from neoedit.geometry import OrientedBox
 from neoedit.rendering.occupancy import cells_in_boxes, refresh_grid
@@ -74,6 +76,68 @@ class RemoveConfig:
     the scan cameras that face the box (the ablation)."""
     views: VirtualViewConfig = field(default_factory=VirtualViewConfig)
     refine: RefineConfig = field(default_factory=RefineConfig)
+    shadow: ShadowConfig = field(default_factory=ShadowConfig)
+    """The object's shadow on its support, found around its footprint, is removed with it
+    (inpainted edits only; a thin slab on the support joins the edited region)."""
+
+
+@dataclass
+class Remove:
+    """Remove ``boxes`` (paper Sec. III-A/B): cut at render time (``cfg.inpaint`` off: the
+    instant preview, or the DFF-style suppression) or inpainted into a trained patch. Run
+    it with :func:`~neoedit.edit.pipeline.apply_edit`."""
+
+    boxes: list[OrientedBox]
+    cfg: RemoveConfig = field(default_factory=RemoveConfig)
+    prompt: str | None = None
+    inpainter: Inpainter | None = None
+    """Overrides ``cfg.inpainter`` with any object of the :class:`Inpainter` protocol."""
+    strips: list[Strip] = field(default_factory=list, repr=False)
+    """Filled by the run: every inpainting round's virtual views (for the report)."""
+
+    def prepare(self, parent: Scene) -> Prepared:
+        cfg = self.cfg
+        if cfg.removal not in REMOVAL_MODES:
+            raise NeoError(
+                f"unknown removal {cfg.removal!r} (choose from {', '.join(REMOVAL_MODES)})"
+            )
+        if not self.boxes:
+            raise NeoError("nothing to remove: give a prompt or --box")
+        check_edit_boxes(parent, self.boxes)  # inside the scene box, not empty
+        cfg.refine.check()
+        cfg.shadow.check()
+        work = working_boxes(parent, self.boxes, cfg)
+        shadows = []
+        if cfg.inpaint:  # the shadow goes with the object (a render-time cut keeps it)
+            shown = MaskedField(parent.field, parent.grid.is_occupied)  # as it renders
+            shadows = shadow_slabs(shown, work, cfg.shadow, parent.scan_cameras()[0])
+            work += shadows
+        inpaint = type(self.inpainter).__name__ if self.inpainter else cfg.inpainter
+        record = {
+            "type": "remove",
+            "prompt": self.prompt,
+            "boxes": [b.to_dict() for b in self.boxes],
+            "edit_boxes": [b.to_dict() for b in work],
+            "shadow_boxes": [b.to_dict() for b in shadows],
+            "removal": cfg.removal,
+            "inpaint": inpaint if cfg.inpaint else None,
+            "config": dataclasses.asdict(cfg),
+        }
+
+        def run(child: Scene, timings: Timings) -> None:
+            if not cfg.inpaint:
+                key = "cut_boxes" if cfg.removal == "resample" else "suppress_boxes"
+                getattr(child.meta, key).extend(b.to_dict() for b in work)
+                return
+            timings.merge(settle(child))  # a preview or cut parent: start from what it shows
+            timings.merge(
+                inpaint_removal(child, work, self.boxes, cfg, self.inpainter, self.strips)
+            )
+            with timings.stage("grid"):
+                region = [edit_region(b, cfg.refine.below_m) for b in work]
+                refresh_grid(child.grid, child.field.density, cells_in_boxes(child.grid, region))
+
+        return Prepared(record, run, LanguageEdit(source=work, targets=[]))
 
 
 def remove(
@@ -85,42 +149,8 @@ def remove(
 ) -> tuple[Scene, list[Strip]]:
     """A new version of ``parent`` with ``boxes`` removed (``parent`` is left unchanged),
     and the virtual-view strips of every inpainting round (for the report)."""
-    if cfg.removal not in REMOVAL_MODES:
-        raise NeoError(f"unknown removal {cfg.removal!r} (choose from {', '.join(REMOVAL_MODES)})")
-    if not boxes:
-        raise NeoError("nothing to remove: give a prompt or --box")
-    check_edit_boxes(parent, boxes)  # inside the scene box, not empty
-    cfg.refine.check()
-    t0 = time.perf_counter()
-    work = working_boxes(parent, boxes, cfg)
-    record = {
-        "type": "remove",
-        "prompt": prompt,
-        "boxes": [b.to_dict() for b in boxes],
-        "edit_boxes": [b.to_dict() for b in work],
-        "removal": cfg.removal,
-        "inpaint": (type(inpainter).__name__ if inpainter else cfg.inpainter)
-        if cfg.inpaint
-        else None,
-        "config": dataclasses.asdict(cfg),
-    }
-    child = new_version(parent, record)
-    strips: list[Strip] = []
-    timings: dict[str, float] = {}
-    if not cfg.inpaint:
-        key = "cut_boxes" if cfg.removal == "resample" else "suppress_boxes"
-        getattr(child.meta, key).extend(b.to_dict() for b in work)
-    else:
-        timings = settle(child)  # a preview or cut parent: start from what it shows
-        timings.update(inpaint_removal(child, work, boxes, cfg, inpainter, strips))
-        t = time.perf_counter()
-        region = [edit_region(b, cfg.refine.below_m) for b in work]
-        refresh_grid(child.grid, child.field.density, cells_in_boxes(child.grid, region))
-        timings["grid_s"] = round(time.perf_counter() - t, 2)
-    timings.update(update_language(parent, child, LanguageEdit(source=work, targets=[])))
-    child.meta.edits[-1]["timings"] = timings
-    child.meta.edits[-1]["seconds"] = round(time.perf_counter() - t0, 2)
-    return child, strips
+    edit = Remove(boxes, cfg, prompt, inpainter)
+    return apply_edit(parent, edit), edit.strips
 
 
 def inpaint_removal(

@@ -30,12 +30,17 @@ class TransformedField(nn.Module):
         super().__init__()
         self.field = field
         t = np.asarray(transform, dtype=np.float64)
+        self._matrix = t.copy()
         self.register_buffer("rotation", torch.as_tensor(t[:3, :3], dtype=torch.float32))
         self.register_buffer("translation", torch.as_tensor(t[:3, 3], dtype=torch.float32))
 
     @property
     def aabb(self) -> torch.Tensor:
         return self.field.aabb
+
+    def matrix(self) -> np.ndarray:
+        """The motion as a 4x4 float64 matrix."""
+        return self._matrix.copy()
 
     def source_points(self, points: torch.Tensor) -> torch.Tensor:
         """T^-1 x for world points (N,3) (row vectors: (x - t) R)."""

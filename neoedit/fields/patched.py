@@ -8,7 +8,9 @@ NEO-Sim removal_1). The edit is still persistent in weights: the patch is saved 
 version and every renderer evaluates the patched field.
 
 A patch owns one or more boxes (a removal of several objects trains one patch). Later
-patches take precedence over earlier ones where regions overlap.
+patches take precedence over earlier ones where regions overlap. A *carried* part (a move
+that keeps the object's own weights) is a frozen copy of the field seen through the move's
+rigid motion, owning the target box.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from neoedit.fields.composed import ComposedField
+from neoedit.fields.composed import ComposedField, TransformedField
 from neoedit.fields.radiance import RadianceField
 from neoedit.fields.room import RoomField
 from neoedit.geometry import OrientedBox, points_in_box
@@ -41,9 +43,12 @@ class PatchedField(ComposedField):
     def patches(self) -> nn.ModuleList:
         return self.parts
 
-    def renderer_of(self, region: list[OrientedBox]) -> RadianceField:
-        """The part that renders the boxes ``region`` now: the newest patch owning a corner or
-        the centre of one of them, else the base."""
+    def renderer_of(
+        self, region: list[OrientedBox], plain: bool = False
+    ) -> RadianceField | TransformedField:
+        """The part that renders the boxes ``region`` now: the newest part owning a corner or
+        the centre of one of them, else the base. ``plain``: never a carried part (a patch
+        to train starts from weights in world coordinates: the base, or a trained patch)."""
         if not region:
             raise ValueError("a region needs at least one box")
         probe = torch.cat(
@@ -52,24 +57,59 @@ class PatchedField(ComposedField):
                 for b in region
             ]
         ).to(self.aabb.device)
-        owners = self.owner(probe)
-        source = self.base if bool((owners < 0).all()) else self.parts[int(owners.max())]
-        return source  # type: ignore[return-value]
+        owners = [int(k) for k in self.owner(probe).tolist() if k >= 0]
+        if plain:
+            owners = [k for k in owners if not isinstance(self.parts[k], TransformedField)]
+        return self.parts[max(owners)] if owners else self.base  # type: ignore[return-value]
 
     def add_patch(
         self, region: list[OrientedBox], init: RadianceField | None = None
     ) -> RadianceField:
         """Append a patch owning the boxes ``region``, initialised from ``init`` (by default
-        the field that renders them now, :meth:`renderer_of`); returns it (the part an edit
-        trains)."""
+        the trained field that renders them now, :meth:`renderer_of` ``plain``); returns it
+        (the part an edit trains)."""
         if not region:
             raise ValueError("a patch needs at least one box")
-        new: RadianceField = copy.deepcopy(init if init is not None else self.renderer_of(region))
-        if isinstance(getattr(new, "background_head", None), RoomField):
-            new.background_head = None  # the scene's room stays the base's (patches are local)
+        source = init if init is not None else self.renderer_of(region, plain=True)
+        new: RadianceField = copy.deepcopy(source)  # type: ignore[assignment]
+        _drop_room(new)
         self.regions.append(list(region))
         self.parts.append(new)
         return new
+
+    def add_carried(
+        self,
+        region: list[OrientedBox],
+        transform: np.ndarray,
+        source: RadianceField | TransformedField,
+    ) -> TransformedField:
+        """Append a frozen part owning the boxes ``region`` that answers with ``source``
+        (what rendered the object at its old place, :meth:`renderer_of` its source box)
+        seen through the rigid ``transform``: a moved object keeps its own weights,
+        exactly, at its new place. A carried part carried again composes the motions
+        (one transform over the original weights)."""
+        if not region:
+            raise ValueError("a patch needs at least one box")
+        motion = np.asarray(transform, dtype=np.float64)
+        if isinstance(source, TransformedField):
+            motion = motion @ source.matrix()
+            source = source.field
+        inner = copy.deepcopy(source).requires_grad_(False)
+        _drop_room(inner)
+        part = TransformedField(inner, motion)
+        self.regions.append(list(region))
+        self.parts.append(part)
+        return part
+
+    def part_transforms(self) -> list[np.ndarray | None]:
+        """Per part: the 4x4 motion of a carried part, None for a trained patch."""
+        return [p.matrix() if isinstance(p, TransformedField) else None for p in self.parts]
+
+
+def _drop_room(field: nn.Module) -> None:
+    """The scene's room stays the base's: patches are local."""
+    if isinstance(getattr(field, "background_head", None), RoomField):
+        field.background_head = None  # type: ignore[assignment]
 
 
 def edit_region(box: OrientedBox, below_m: float) -> OrientedBox:

@@ -11,8 +11,7 @@ importing this package (no ``scene`` <-> ``language`` cycle):
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from neoedit.utils.lazy import lazy_exports
 
 _EXPORTS = {
     "train_language": "training",
@@ -31,7 +30,4 @@ _EXPORTS = {
 __all__ = sorted(_EXPORTS)
 
 
-def __getattr__(name: str) -> Any:
-    if name in _EXPORTS:
-        return getattr(importlib.import_module(f"{__name__}.{_EXPORTS[name]}"), name)
-    raise AttributeError(name)
+__getattr__ = lazy_exports(__name__, _EXPORTS)

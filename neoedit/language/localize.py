@@ -154,11 +154,17 @@ def estimate_up(
     min_inlier_fraction: float = 0.2,
     iterations: int = 256,
     seed: int = 0,
+    max_tilt_deg: float = 45.0,
 ) -> np.ndarray:
-    """Unit up vector (3,): normal of the dominant plane of ``points_m`` (RANSAC) oriented
-    like the mean camera up axis (OpenGL +y); that mean alone without a dominant plane."""
+    """Unit up vector (3,): normal of the dominant plane of ``points_m`` (RANSAC) among the
+    planes within ``max_tilt_deg`` of the mean camera up axis (OpenGL +y), oriented like
+    it; that mean alone without such a plane. A support is roughly level with the way the
+    cameras are held: a wall, a box's side or the side of a can is not the ground, however
+    many surface points it holds."""
     cam_up = camera_up(cameras)
-    plane = None if points_m is None else dominant_plane(points_m, inlier_m, iterations, seed)
+    plane = None
+    if points_m is not None:
+        plane = dominant_plane(points_m, inlier_m, iterations, seed, cam_up, max_tilt_deg)
     if plane is None or plane[2] < min_inlier_fraction:
         return cam_up
     n = plane[0]

@@ -11,6 +11,7 @@ import numpy as np
 from neoedit.cameras.cameras import orbit_center
 from neoedit.data import SceneData
 from neoedit.data.bounds import alpha_hull_box
+from neoedit.errors import NeoError
 from neoedit.fields.radiance import RadianceFieldConfig
 
 
@@ -33,6 +34,12 @@ def field_config(
     if cfg.room is None:
         room = photos and bool(cfg.learned_background) and not cfg.closed_bottom
         cfg = dataclasses.replace(cfg, room=room and cameras_outside(data, box) > 0.5)
+    elif cfg.room and (cfg.closed_bottom or cfg.learned_background is False):
+        raise NeoError(
+            "--field.room True models what lies beyond the box: it cannot be combined with "
+            "--field.closed-bottom True or --field.learned-background False (they set what "
+            "rays leaving the box see); drop one of them"
+        )
     return cfg
 
 

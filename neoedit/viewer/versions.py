@@ -16,8 +16,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from neoedit.edit.history import check_output, edit_lock
-from neoedit.edit.relocate import Motion, MoveConfig, move
-from neoedit.edit.remove import RemoveConfig, remove, write_report
+from neoedit.edit.pipeline import apply_edit
+from neoedit.edit.relocate import Motion, Move, MoveConfig
+from neoedit.edit.remove import Remove, RemoveConfig, write_report
 from neoedit.errors import NeoError
 from neoedit.scene import Scene, save_scene
 from neoedit.storage import SceneStore
@@ -120,11 +121,12 @@ def commit_edit(
     check_output(parent_dir, out)
     with edit_lock(out), progress_listener(report):
         if edit.kind == "remove":
-            child, strips = remove(parent, [edit.box], remove_cfg, edit.prompt)
+            removal = Remove([edit.box], remove_cfg, edit.prompt)
+            child, strips = apply_edit(parent, removal), removal.strips
         else:
             assert edit.transform is not None
-            child = move(parent, [Motion(edit.box, edit.transform)], move_cfg, edit.prompt)
-            strips = []
+            motion = Motion(edit.box, edit.transform)
+            child, strips = apply_edit(parent, Move([motion], move_cfg, edit.prompt)), []
         report("writing the version", 1.0)
         save_scene(out, child, extras=lambda d: write_report(d / "report", parent, child, strips))
     return out.name, out, child

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.ndimage
@@ -29,9 +29,9 @@ import torch
 from neoedit.data import SceneData
 from neoedit.data.sparse_depth import is_sparse
 from neoedit.edit.checks import check_edit_boxes
-from neoedit.edit.history import new_version
 from neoedit.edit.inpaint import Inpainter, inpaint_views, make_inpainter
-from neoedit.edit.language_update import LanguageEdit, update_language
+from neoedit.edit.language_update import LanguageEdit
+from neoedit.edit.pipeline import Prepared, Timings, apply_edit
 from neoedit.edit.refine import crop_window, render_crops
 from neoedit.edit.remove import RemoveConfig, working_boxes
 from neoedit.errors import NeoError
@@ -75,6 +75,46 @@ class NerfillerConfig:
     seed: int = 0
 
 
+@dataclass
+class NerfillerRemove:
+    """Remove ``boxes`` by retraining a fresh field on the scan ``data`` with its training
+    views inpainted (the views are edited in a copy). Run it with
+    :func:`~neoedit.edit.pipeline.apply_edit`."""
+
+    data: SceneData
+    boxes: list[OrientedBox]
+    cfg: NerfillerConfig = field(default_factory=NerfillerConfig)
+    prompt: str | None = None
+    inpainter: Inpainter | None = None
+
+    def prepare(self, parent: Scene) -> Prepared:
+        cfg, data = self.cfg, self.data
+        _check_parent(parent, data, self.boxes, cfg)
+        work = working_boxes(parent, self.boxes, RemoveConfig(margin_m=cfg.margin_m))
+        inpainter = self.inpainter
+        if inpainter is None:
+            device = str(parent.field.aabb.device)
+            inpainter = make_inpainter(cfg.inpainter, cfg.inpaint_path, cfg.inpaint_prompt, device)
+        record = {
+            "type": "remove",
+            "method": "nerfiller" if cfg.depth else "nerfiller-no-depth",
+            "prompt": self.prompt,
+            "boxes": [b.to_dict() for b in self.boxes],
+            "edit_boxes": [b.to_dict() for b in work],
+            "inpaint": getattr(inpainter, "name", type(inpainter).__name__),
+            "config": dataclasses.asdict(cfg),
+        }
+        steps = parent.meta.step if cfg.steps is None else cfg.steps
+        train_cfg = _train_config(parent, data, cfg, steps)
+
+        def run(child: Scene, timings: Timings) -> None:
+            fresh = Scene.create(child.meta, parent.field.aabb.device, seed=cfg.seed)
+            child.field, child.grid = fresh.field, fresh.grid
+            _retrain(child, data, work, cfg, train_cfg, inpainter, timings)
+
+        return Prepared(record, run, LanguageEdit(source=work, targets=[]))
+
+
 def nerfiller(
     parent: Scene,
     data: SceneData,
@@ -83,34 +123,9 @@ def nerfiller(
     prompt: str | None = None,
     inpainter: Inpainter | None = None,
 ) -> Scene:
-    """A new version of parent with boxes removed by retraining on inpainted training views; parent unchanged.
-
-    ``data`` is the parent's scan (its training views are inpainted in a copy)."""
-    _check_parent(parent, data, boxes, cfg)
-    t0 = time.perf_counter()
-    work = working_boxes(parent, boxes, RemoveConfig(margin_m=cfg.margin_m))
-    if inpainter is None:
-        device = str(parent.field.aabb.device)
-        inpainter = make_inpainter(cfg.inpainter, cfg.inpaint_path, cfg.inpaint_prompt, device)
-    record = {
-        "type": "remove",
-        "method": "nerfiller" if cfg.depth else "nerfiller-no-depth",
-        "prompt": prompt,
-        "boxes": [b.to_dict() for b in boxes],
-        "edit_boxes": [b.to_dict() for b in work],
-        "inpaint": getattr(inpainter, "name", type(inpainter).__name__),
-        "config": dataclasses.asdict(cfg),
-    }
-    child = new_version(parent, record)
-    steps = parent.meta.step if cfg.steps is None else cfg.steps
-    train_cfg = _train_config(parent, data, cfg, steps)
-    fresh = Scene.create(child.meta, parent.field.aabb.device, seed=cfg.seed)
-    child.field, child.grid = fresh.field, fresh.grid
-    timings = _retrain(child, data, work, cfg, train_cfg, inpainter)
-    timings.update(update_language(parent, child, LanguageEdit(source=work, targets=[])))
-    child.meta.edits[-1]["timings"] = timings
-    child.meta.edits[-1]["seconds"] = round(time.perf_counter() - t0, 2)
-    return child
+    """A new version of ``parent`` with ``boxes`` removed the NeRFiller way
+    (:class:`NerfillerRemove`); ``parent`` unchanged."""
+    return apply_edit(parent, NerfillerRemove(data, boxes, cfg, prompt, inpainter))
 
 
 def _check_parent(
@@ -275,18 +290,19 @@ def _retrain(
     cfg: NerfillerConfig,
     train_cfg: TrainConfig,
     inpainter: Inpainter,
-) -> dict[str, float]:
+    timings: Timings,
+) -> None:
     """Inpaint the dataset and train ``child``'s fresh field on it (in place) with the
-    dataset updates; returns timings."""
-    t = time.perf_counter()
+    dataset updates, timed into ``timings``."""
     rounds, steps = max(cfg.rounds, 1), train_cfg.max_steps
     xis = [
         cfg.strength + (cfg.strength_final - cfg.strength) * k / max(rounds - 1, 1)
         for k in range(rounds)
     ]
-    views = masked_views(data, boxes, cfg.crop_margin_px)
-    inpainted = _inpainted_data(data, views, inpainter, xis[0], cfg.depth)
-    timings = {"inpaint_s": time.perf_counter() - t, "render_s": 0.0}
+    with timings.stage("inpaint"):
+        views = masked_views(data, boxes, cfg.crop_margin_px)
+        inpainted = _inpainted_data(data, views, inpainter, xis[0], cfg.depth)
+    timings["render_s"] = 0.0
     trainer = Trainer(inpainted, child, train_cfg, None, child.field.aabb.device)
     update_at = {round(k * steps / rounds): k for k in range(1, rounds)}
     t_train, ema, k = 0.0, 1.0, 0
@@ -303,13 +319,12 @@ def _retrain(
             status = f"round {k + 1}/{rounds} xi {xis[k]:.2f} | PSNR {psnr(ema):5.2f} dB"
             progress.update(task, completed=step + 1, status=status)
     trainer.finish_grid()
-    timings["train_s"] = t_train
+    timings["train_s"] = round(t_train, 2)
     meta = child.meta
     meta.train, meta.step, meta.train_seconds = dataclasses.asdict(train_cfg), steps, t_train
     meta.history = [
         {"step": steps, "seconds": round(t_train, 2), "train_psnr": round(psnr(ema), 3)}
     ]
-    return {key: round(v, 2) for key, v in timings.items()}
 
 
 def _update_dataset(
@@ -317,20 +332,32 @@ def _update_dataset(
     views: MaskedViews,
     inpainter: Inpainter,
     xi: float,
-    timings: dict[str, float],
+    timings: Timings,
 ) -> None:
     """One dataset update: render the masked views' windows from the current field,
     re-inpaint them with strength ``xi`` (the scan's photo around the mask as context) and
     write them into the trainer's targets; depth: xi * inpainted + (1 - xi) * rendered."""
     scene = trainer.scene
-    t = time.perf_counter()
     rendered, depths = [], []
-    for f, w in zip(views.frames, views.windows, strict=True):
-        rgb, depth = render_crops(scene.field, scene, trainer.data.cameras.subset([f]), w, [])
-        rendered.append(rgb[0])
-        depths.append(depth[0].cpu().numpy())
-    timings["render_s"] += time.perf_counter() - t
-    t = time.perf_counter()
+    with timings.stage("render"):
+        for f, w in zip(views.frames, views.windows, strict=True):
+            rgb, depth = render_crops(scene.field, scene, trainer.data.cameras.subset([f]), w, [])
+            rendered.append(rgb[0])
+            depths.append(depth[0].cpu().numpy())
+    with timings.stage("inpaint"):
+        _refill(trainer, views, inpainter, xi, rendered, depths)
+
+
+def _refill(
+    trainer: Trainer,
+    views: MaskedViews,
+    inpainter: Inpainter,
+    xi: float,
+    rendered: list[np.ndarray],
+    depths: list[np.ndarray],
+) -> None:
+    """Re-inpaint the rendered windows and write them (and the blended depth) into the
+    trainer's targets."""
     given = [
         np.where(m[..., None], r, o)
         for m, r, o in zip(views.masks, rendered, views.rgb, strict=True)
@@ -345,4 +372,3 @@ def _update_dataset(
         ):
             target = np.where(m & (d0 > 0), xi * d0 + (1.0 - xi) * dr, d0)
             trainer.depth[row, rs, cs] = torch.as_tensor(target.astype(np.float32), device=device)
-    timings["inpaint_s"] += time.perf_counter() - t

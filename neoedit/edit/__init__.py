@@ -1,0 +1,34 @@
+"""Editing a trained scene (paper Sec. III): every edit is a typed object run by the one
+pipeline, :func:`apply_edit` (:mod:`neoedit.edit.pipeline`)::
+
+    from neoedit.edit import Move, Motion, Remove, apply_edit
+
+    no_mug = apply_edit(scene, Remove([mug_box]))
+    moved = apply_edit(scene, Move([Motion(mug_box, transform)]))
+
+The edits: :class:`Remove` (NEO's removal and inpainting, or the instant preview),
+:class:`Move` (NEO's distillation, the Seal-3D-style baseline or the preview),
+:class:`SealRemove` (the Seal-3D-style removal); ``neoedit.bench.nerfiller.NerfillerRemove``
+(the NeRFiller-style baseline). Exports load lazily (the modules import torch).
+"""
+
+from __future__ import annotations
+
+from neoedit.utils.lazy import lazy_exports
+
+_EXPORTS = {
+    "apply_edit": "neoedit.edit.pipeline",
+    "Edit": "neoedit.edit.pipeline",
+    "Prepared": "neoedit.edit.pipeline",
+    "Remove": "neoedit.edit.remove",
+    "RemoveConfig": "neoedit.edit.remove",
+    "Move": "neoedit.edit.relocate",
+    "SealRemove": "neoedit.edit.relocate",
+    "Motion": "neoedit.edit.motion",
+    "MoveConfig": "neoedit.edit.motion",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+__getattr__ = lazy_exports(__name__, _EXPORTS)

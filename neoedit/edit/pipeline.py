@@ -1,0 +1,64 @@
+"""One edit pipeline: every edit of a scene, whatever its method, runs the same sequence.
+
+An edit is a typed object (:class:`~neoedit.edit.remove.Remove`,
+:class:`~neoedit.edit.relocate.Move`, the baselines' ``SealRemove`` and ``NerfillerRemove``);
+:func:`apply_edit` runs it on a scene and returns the new version::
+
+    prepared = edit.prepare(parent)        # checks, edit boxes, the history record: no work
+    child = new_version(parent, record)    # a deep copy with a fresh id; parent unchanged
+    prepared.run(child, timings)           # the method: patches trained, grids refreshed
+    update_language(parent, child, ...)    # the query cloud follows the edit
+    record timings and seconds             # into the child's last history entry
+
+A new method is a new class with a ``prepare`` method; nothing here changes. Work is timed
+with :meth:`Timings.stage`, so every edit's record holds the same kind of entries
+(``<stage>_s`` seconds, ``loss_<name>`` values).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+from neoedit.edit.history import new_version
+from neoedit.edit.language_update import LanguageEdit, LanguageUpdateConfig, update_language
+from neoedit.scene import Scene
+from neoedit.utils.timings import Timings
+
+__all__ = ["Edit", "Prepared", "Timings", "apply_edit"]
+
+
+@dataclass
+class Prepared:
+    """What an edit resolves to on one parent scene, before any work is done."""
+
+    record: dict[str, Any]
+    """The history entry (type, prompt, boxes, method, configuration)."""
+    run: Callable[[Scene, Timings], None]
+    """The method's work on the new version (in place), timed into the Timings."""
+    language: LanguageEdit
+    """Where the query cloud loses points and where it gains them."""
+    language_cfg: LanguageUpdateConfig | None = None
+
+
+class Edit(Protocol):
+    """Anything :func:`apply_edit` can run: checks its input against ``parent`` (raising
+    NeoError before any long work) and says what it will do."""
+
+    def prepare(self, parent: Scene) -> Prepared: ...
+
+
+def apply_edit(parent: Scene, edit: Edit) -> Scene:
+    """The new version of ``parent`` with ``edit`` applied; ``parent`` is left unchanged."""
+    t0 = time.perf_counter()
+    prepared = edit.prepare(parent)
+    child = new_version(parent, prepared.record)
+    timings = Timings()
+    prepared.run(child, timings)
+    with timings.stage("language_total"):
+        timings.merge(update_language(parent, child, prepared.language, prepared.language_cfg))
+    child.meta.edits[-1]["timings"] = dict(timings)
+    child.meta.edits[-1]["seconds"] = round(time.perf_counter() - t0, 2)
+    return child

@@ -1,0 +1,70 @@
+"""The shadow an object casts on its support is found around its footprint and joins the
+removal (a field with a known dark patch on a plane)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from torch import nn
+
+from neoedit.edit.shadow import ShadowConfig, shadow_slab, shadow_slabs
+from neoedit.errors import NeoError
+from neoedit.geometry import OrientedBox
+
+OBJECT = OrientedBox((0.0, 0.0, 0.05), (0.06, 0.04, 0.1), 30.0)
+
+
+class Table(nn.Module):
+    """An opaque table top at z = 0 (grey 0.6), darker (0.3) where ``shadow(x, y)``."""
+
+    def __init__(self, shadow):
+        super().__init__()
+        self.shadow = shadow
+        self.register_buffer("aabb", torch.tensor([[-0.5, -0.5, -0.1], [0.5, 0.5, 0.4]]))
+
+    def density(self, points):
+        return torch.where(points[:, 2] < 0.0, 2000.0, 0.0)
+
+    def forward(self, points, directions):
+        dark = self.shadow(points[:, 0], points[:, 1])
+        grey = torch.where(dark, 0.3, 0.6)
+        return self.density(points), grey[:, None].expand(-1, 3)
+
+
+def test_a_shadow_beside_the_footprint_is_found_and_held_by_the_slab():
+    # a 4 cm x 6 cm dark patch touching the footprint's +x side in the world frame
+    def shadow(x, y):
+        return (x > 0.0) & (x < 0.07) & (y.abs() < 0.03)
+
+    slab = shadow_slab(Table(shadow), OBJECT, ShadowConfig())
+    assert slab is not None and slab.yaw_deg == OBJECT.yaw_deg
+    xs, ys = np.meshgrid(np.linspace(0.005, 0.065, 13), np.linspace(-0.025, 0.025, 11))
+    patch = np.stack([xs.ravel(), ys.ravel(), np.zeros(xs.size)], 1)
+    assert slab.contains(patch, margin_m=1e-6).all()  # every shadowed cell is in the slab
+    assert slab.contains(OBJECT.corners()[:4] * [1, 1, 0], margin_m=1e-6).all()  # and the footprint
+    far = np.array([[-0.12, 0.0, 0.0], [0.0, -0.12, 0.0], [0.15, 0.0, 0.0]])
+    assert not slab.contains(far).any()  # not the lit table around it
+    assert slab.size_m[2] < 0.02  # a thin slab on the support
+
+
+def test_no_shadow_no_slab_and_a_dark_spot_apart_is_not_a_shadow():
+    assert (
+        shadow_slab(
+            Table(lambda x, y: torch.zeros_like(x, dtype=torch.bool)), OBJECT, ShadowConfig()
+        )
+        is None
+    )
+
+    def apart(x, y):  # dark, but not touching the footprint
+        return ((x - 0.09) ** 2 + y**2) < 0.01**2
+
+    assert shadow_slab(Table(apart), OBJECT, ShadowConfig()) is None
+    off = ShadowConfig(enabled=False)
+    assert shadow_slabs(Table(lambda x, y: x > 0), [OBJECT], off) == []
+
+
+@pytest.mark.parametrize("field,value", [("darker", 1.0), ("cell_m", 0.0), ("reach", -1.0)])
+def test_bad_shadow_settings_are_refused(field, value):
+    with pytest.raises(NeoError, match=field.replace("_", "-")):
+        ShadowConfig(**{field: value}).check()
