@@ -78,6 +78,8 @@ def check_scene_meta(meta: Any, path: Path) -> None:
         if not isinstance(p, Mapping) or "region" not in p or "version" not in p:
             raise NeoError(f"{where}: patches[{i}] needs 'region' and 'version'")
         check_box_dicts(p["region"], f"{where}: patches[{i}].region")
+        if "transform" in p and not _is_rigid(p["transform"]):
+            raise NeoError(f"{where}: patches[{i}].transform must be a rigid 4x4 matrix")
     for i, move in enumerate(getattr(meta, "moves", None) or []):
         ok = isinstance(move, Mapping) and {"source", "target", "transform"} <= move.keys()
         if not ok or not _is_rigid(move["transform"]):

@@ -216,3 +216,23 @@ def test_a_carried_part_round_trips(trained: Path, tmp_path: Path):
     pts = torch.cat([pts, torch.rand(500, 3) * 0.2 - torch.tensor([0.1, 0.1, 0.0])])
     with torch.no_grad():
         assert torch.allclose(again.field.density(pts), scene.field.density(pts))
+
+
+def test_the_part_inside_a_box_is_the_one_owning_most_of_it():
+    """A neighbour's region touching a corner of the box does not make it the box's part."""
+    base = RadianceField(CFG, AABB, seed=1)
+    field = PatchedField(base)
+    box = OrientedBox((0.0, 0.0, 0.1), (0.1, 0.1, 0.1), 0.0)
+    corner = field.add_patch([OrientedBox((0.05, 0.05, 0.15), (0.04, 0.04, 0.04), 0.0)])
+    assert field.renderer_of([box]) is corner  # any corner: the newest owner
+    assert field.renderer_inside(box) is base
+    inside = field.add_patch([box.grown(0.01)])
+    assert field.renderer_inside(box) is inside
+
+
+def test_a_carried_part_is_stored_against_the_base_in_a_scene_store():
+    from neoedit.storage.blobs import _candidates
+
+    parent = {"field.encoding.table": None, "patch0.encoding.table": None}
+    assert "field.encoding.table" in _candidates("patch1.field.encoding.table", parent)
+    assert set(_candidates("patch1.encoding.table", parent)) == set(parent)

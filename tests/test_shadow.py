@@ -40,12 +40,15 @@ def test_a_shadow_beside_the_footprint_is_found_and_held_by_the_slab():
     slab = shadow_slab(Table(shadow), OBJECT, ShadowConfig())
     assert slab is not None and slab.yaw_deg == OBJECT.yaw_deg
     xs, ys = np.meshgrid(np.linspace(0.005, 0.065, 13), np.linspace(-0.025, 0.025, 11))
-    patch = np.stack([xs.ravel(), ys.ravel(), np.zeros(xs.size)], 1)
-    assert slab.contains(patch, margin_m=1e-6).all()  # every shadowed cell is in the slab
-    assert slab.contains(OBJECT.corners()[:4] * [1, 1, 0], margin_m=1e-6).all()  # and the footprint
-    far = np.array([[-0.12, 0.0, 0.0], [0.0, -0.12, 0.0], [0.15, 0.0, 0.0]])
+    above = 0.006  # just over the table, in the slab
+    patch = np.stack([xs.ravel(), ys.ravel(), np.full(xs.size, above)], 1)
+    assert slab.contains(patch, margin_m=1e-6).all()  # every shadowed cell is under the slab
+    foot = OBJECT.corners()[:4] * [1, 1, 0] + [0, 0, above]
+    assert slab.contains(foot, margin_m=1e-6).all()  # and the footprint
+    far = np.array([[-0.12, 0.0, above], [0.0, -0.12, above], [0.15, 0.0, above]])
     assert not slab.contains(far).any()  # not the lit table around it
-    assert slab.size_m[2] < 0.02  # a thin slab on the support
+    bottom = slab.center_m[2] - slab.size_m[2] / 2
+    assert 0.0 < bottom < 0.005 and slab.size_m[2] < 0.02  # thin, and the table is not cut
 
 
 def test_no_shadow_no_slab_and_a_dark_spot_apart_is_not_a_shadow():

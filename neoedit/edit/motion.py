@@ -82,11 +82,12 @@ class MoveConfig:
     its print. False: the paper's design, the target patch distilled from the composed
     teacher (NEO's patch student only)."""
     student: str = "patch"
-    """'patch': the student is two new patches of the field, initialised from the current
-    weights: one owns the source boxes with the support under them (its MLPs learn at
+    """'patch': the student is a new patch of the field, initialised from the current
+    weights, owning the source boxes with the support under them (its MLPs learn at
     ``distill.mlp_lr_factor``, 0 by default: the hole needs only table rows;
-    ``reuse_removal_patch``: the removal's own patch instead), one owns the target boxes
-    (its MLPs learn at ``distill.patch_mlp_lr_factor``: a new object stands there); the rest
+    ``reuse_removal_patch``: the removal's own patch instead); the targets are carried
+    (``carry``) or, without it, a second patch owning them (its MLPs learn at
+    ``distill.patch_mlp_lr_factor``: a new object stands there); the rest
     of the scene stays bit-identical, so a chain of edits cannot wash it out. 'field': the
     whole field is the student (updates limited to the table rows that samples in the boxes
     read; earlier patches are baked in). The Seal-3D-style baseline always distils the whole

@@ -1,6 +1,7 @@
 """The distillation of a move (paper Sec. III-C/D): the region-composed teacher (the current
 field outside, the removed and inpainted field in the source boxes, the moved field in the
-target boxes), the student (two new patches, or the whole field) and the two-stage
+target boxes), the student (a patch for the hole beside the carried targets, two patches,
+or the whole field) and the two-stage
 distillation between them; the Seal-3D-style baseline's single teacher and schedule."""
 
 from __future__ import annotations
@@ -120,7 +121,7 @@ def _students(
     the target parts are the parent's own weights under the motion, frozen, not students."""
     if carried is not None:
         pf = parent.field
-        inits = [pf.renderer_of([s]) if isinstance(pf, PatchedField) else pf for s, _ in carried]
+        inits = [pf.renderer_inside(s) if isinstance(pf, PatchedField) else pf for s, _ in carried]
         child.field = copy.deepcopy(removed if removed is not None else parent.field)
         patched = child.patched()
         students = []
@@ -161,9 +162,9 @@ def distil_move(
     timings: Timings,
     shadows: list[OrientedBox] | None = None,
 ) -> None:
-    """Build the teacher, distil it into ``child.field`` (two new patches of the parent's
-    field, or with ``student='field'`` a plain radiance field initialised from the parent's
-    weights) and refresh ``child.grid``. ``shadows``: slabs on the support around the
+    """Build the teacher, distil it into ``child.field`` (a patch for the hole and a
+    carried part per target; with ``carry`` off two patches, with ``student='field'`` a
+    plain radiance field initialised from the parent's weights) and refresh ``child.grid``. ``shadows``: slabs on the support around the
     sources (their shadows), emptied and inpainted with them."""
     shadows = shadows or []
     with timings.stage("teacher"):

@@ -291,7 +291,7 @@ def refine_removal(
     ``scan_cameras`` only what they did not see (:mod:`neoedit.edit.visibility`).
     ``on_round(k, rendered, holes, inpainted)`` receives each round's crops (for the
     strips). Returns timings (``total_s`` and its stages)."""
-    timings = Timings()
+    timings = Timings(visibility_s=0.0, outside_s=0.0)  # stages that may not run
     device = scene.field.aabb.device
     with timings.stage("total"), timings.stage("setup"):  # the patch, L_keep's targets, a march
         loss_step, optimizer, masks = _patch_training(scene, boxes, virtual, cfg, scan_cameras)

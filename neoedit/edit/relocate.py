@@ -7,8 +7,11 @@
 * ``neo`` (the paper): the source box is removed and inpainted (the removal pipeline,
   :func:`neoedit.edit.remove.inpaint_removal`), the teacher is composed region by region
   — current field outside, removed+inpainted field in the source box, moved field in the
-  target box (target wins) — and distilled into a student initialised from the current
-  weights, on rays of the scan cameras and of virtual views around source and target.
+  target box (target wins). The target box is carried (the parent's own weights seen
+  through the motion, exactly the teacher there); the source region is distilled into a
+  patch initialised from the current weights, on rays of the scan cameras and of virtual
+  views around source and target (``carry`` off: the target is distilled too, the
+  paper's design).
 * ``seal3d`` (the baseline, Seal-3D, Wang et al. ICCV 2023): one teacher — the current
   field with the target box mapped back by the inverse motion and the source box empty,
   no inpainting —, a local point-level stage (density + colour on points in and around the

@@ -105,7 +105,7 @@ class Remove:
             raise NeoError("nothing to remove: give a prompt or --box")
         check_edit_boxes(parent, self.boxes)  # inside the scene box, not empty
         cfg.refine.check()
-        cfg.shadow.check()
+        cfg.shadow.check("--edit.shadow")
         work = working_boxes(parent, self.boxes, cfg)
         shadows = []
         if cfg.inpaint:  # the shadow goes with the object (a render-time cut keeps it)

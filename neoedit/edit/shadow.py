@@ -24,6 +24,9 @@ from neoedit.errors import NeoError
 from neoedit.fields.radiance import Field
 from neoedit.geometry import OrientedBox
 
+SLAB_LIFT_M = 0.002
+"""A shadow slab starts this far above the support (the table itself is not cut)."""
+
 
 @dataclass
 class ShadowConfig:
@@ -41,8 +44,8 @@ class ShadowConfig:
     cell_m: float = 0.004
     """Grid spacing of the vertical rays [m]."""
     band_m: float = 0.01
-    """Half the slab's height: the support's rendered depth must lie within this of the
-    box's bottom, and the slab reaches this far above and below it."""
+    """The support's rendered depth must lie within this of the box's bottom; the slab is
+    this high."""
 
     def check(self, where: str = "--shadow") -> None:
         for name in ("reach", "ring", "darker", "cell_m", "band_m"):
@@ -137,12 +140,13 @@ def shadow_slab(
     )
     lo, hi = cells.min(0) - cfg.cell_m, cells.max(0) + cfg.cell_m
     centre_xy = (lo + hi) / 2 @ box.rotation[:2, :2].T + box.center_m[:2]
-    # from half a band under the support to a band over it: the removal inpaints the low
-    # points of a box's footprint (RefineConfig.support_band_m), here the shadowed table
-    bottom = box.center_m[2] - box.size_m[2] / 2
+    # from 2 mm over the support to a band over that: the removal preview's cut keeps the
+    # table, whose points under the slab's footprint are inpainted as a box's low points
+    # are (RefineConfig.support_band_m), and the patch's region reaches under it
+    bottom = box.center_m[2] - box.size_m[2] / 2 + SLAB_LIFT_M
     return OrientedBox(
-        (float(centre_xy[0]), float(centre_xy[1]), float(bottom + cfg.band_m / 4)),
-        (float(hi[0] - lo[0]), float(hi[1] - lo[1]), 1.5 * cfg.band_m),
+        (float(centre_xy[0]), float(centre_xy[1]), float(bottom + cfg.band_m / 2)),
+        (float(hi[0] - lo[0]), float(hi[1] - lo[1]), cfg.band_m),
         box.yaw_deg,
     )
 

@@ -31,8 +31,13 @@ class TransformedField(nn.Module):
         self.field = field
         t = np.asarray(transform, dtype=np.float64)
         self._matrix = t.copy()
-        self.register_buffer("rotation", torch.as_tensor(t[:3, :3], dtype=torch.float32))
-        self.register_buffer("translation", torch.as_tensor(t[:3, 3], dtype=torch.float32))
+        device = field.aabb.device  # the motion lives where the field does
+        self.register_buffer(
+            "rotation", torch.as_tensor(t[:3, :3], dtype=torch.float32, device=device)
+        )
+        self.register_buffer(
+            "translation", torch.as_tensor(t[:3, 3], dtype=torch.float32, device=device)
+        )
 
     @property
     def aabb(self) -> torch.Tensor:

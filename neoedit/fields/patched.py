@@ -62,6 +62,17 @@ class PatchedField(ComposedField):
             owners = [k for k in owners if not isinstance(self.parts[k], TransformedField)]
         return self.parts[max(owners)] if owners else self.base  # type: ignore[return-value]
 
+    def renderer_inside(self, box: OrientedBox) -> RadianceField | TransformedField:
+        """The part that renders most of ``box``: the owner of most points of a 5x5x5 grid
+        over its inner 80 % (a neighbour's region touching a corner does not count)."""
+        steps = np.linspace(-0.4, 0.4, 5)
+        local = np.stack(np.meshgrid(steps, steps, steps, indexing="ij"), -1).reshape(-1, 3)
+        world = (local * np.asarray(box.size_m)) @ box.rotation.T + np.asarray(box.center_m)
+        owners = self.owner(torch.as_tensor(world, dtype=torch.float32, device=self.aabb.device))
+        values, counts = torch.unique(owners, return_counts=True)
+        top = int(values[int(torch.argmax(counts))])
+        return self.base if top < 0 else self.parts[top]  # type: ignore[return-value]
+
     def add_patch(
         self, region: list[OrientedBox], init: RadianceField | None = None
     ) -> RadianceField:

@@ -157,14 +157,16 @@ def estimate_up(
     max_tilt_deg: float = 45.0,
 ) -> np.ndarray:
     """Unit up vector (3,): normal of the dominant plane of ``points_m`` (RANSAC) among the
-    planes within ``max_tilt_deg`` of the mean camera up axis (OpenGL +y), oriented like
-    it; that mean alone without such a plane. A support is roughly level with the way the
-    cameras are held: a wall, a box's side or the side of a can is not the ground, however
-    many surface points it holds."""
+    planes within ``max_tilt_deg`` of world +z (the data's up after import), oriented like
+    the mean camera up axis (OpenGL +y); that mean alone without such a plane. A wall, a
+    box's side or the side of a can is not the ground, however many surface points it
+    holds; data tilted further than ``max_tilt_deg`` finds no plane and falls back to the
+    cameras, which :func:`check_up` then judges."""
     cam_up = camera_up(cameras)
     plane = None
     if points_m is not None:
-        plane = dominant_plane(points_m, inlier_m, iterations, seed, cam_up, max_tilt_deg)
+        z = np.array([0.0, 0.0, 1.0])
+        plane = dominant_plane(points_m, inlier_m, iterations, seed, z, max_tilt_deg)
     if plane is None or plane[2] < min_inlier_fraction:
         return cam_up
     n = plane[0]

@@ -78,11 +78,13 @@ def _rows(x: torch.Tensor, ref: torch.Tensor) -> torch.Tensor | None:
 
 def _candidates(name: str, parent: Mapping[str, torch.Tensor]) -> list[str]:
     """Parent tensors a tensor may be stored against: its own name first, then (for a new
-    patch) the same parameter of the base field and of every earlier patch."""
+    patch) the same parameter of the base field and of every earlier patch (a carried
+    part's ``patchN.field.X`` matches the base's ``field.X``)."""
     if name in parent:
         return [name]
     suffix = name.split(".", 1)[1] if "." in name else name
-    return [k for k in parent if k.split(".", 1)[-1] == suffix and k != name]
+    same = {suffix, suffix.removeprefix("field.")}
+    return [k for k in parent if k != name and k.split(".", 1)[-1] in same]
 
 
 def encode(
