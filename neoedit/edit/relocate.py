@@ -36,9 +36,8 @@ from neoedit.edit.move_distill import distil_move
 from neoedit.edit.pipeline import Prepared, Timings, apply_edit
 from neoedit.edit.remove import working_boxes
 from neoedit.edit.settle import settle
-from neoedit.edit.shadow import shadow_slabs
+from neoedit.edit.shadow import scene_shadows
 from neoedit.errors import NeoError
-from neoedit.fields.composed import MaskedField
 from neoedit.geometry import OrientedBox
 from neoedit.geometry.box import box_iou_3d
 from neoedit.rendering.occupancy import cells_in_boxes, refresh_grid
@@ -66,8 +65,7 @@ class Move:
         sources = working_boxes(parent, [m.box for m in self.motions], cfg.remove)
         shadows: list[OrientedBox] = []
         if not cfg.preview and cfg.method == "neo":  # NEO inpaints the source: shadow too
-            shown = MaskedField(parent.field, parent.grid.is_occupied)
-            shadows = shadow_slabs(shown, sources, cfg.remove.shadow, parent.scan_cameras()[0])
+            shadows = scene_shadows(parent, sources, cfg.remove.shadow)
         transforms = [np.asarray(m.transform, dtype=np.float64) for m in self.motions]
         targets = [
             s.transformed(t).lifted_bottom(cfg.target_floor_m)

@@ -30,10 +30,9 @@ from neoedit.edit.masks import grown_box, grown_box_clear_of
 from neoedit.edit.pipeline import Prepared, Timings, apply_edit
 from neoedit.edit.refine import RefineConfig, refine_removal
 from neoedit.edit.settle import settle
-from neoedit.edit.shadow import ShadowConfig, shadow_slabs
+from neoedit.edit.shadow import ShadowConfig, scene_shadows
 from neoedit.edit.views import VirtualViewConfig, concat_cameras, virtual_cameras
 from neoedit.errors import NeoError
-from neoedit.fields.composed import MaskedField
 from neoedit.fields.patched import edit_region
 from neoedit.geometry import OrientedBox
 from neoedit.rendering.occupancy import cells_in_boxes, refresh_grid
@@ -109,8 +108,7 @@ class Remove:
         work = working_boxes(parent, self.boxes, cfg)
         shadows = []
         if cfg.inpaint:  # the shadow goes with the object (a render-time cut keeps it)
-            shown = MaskedField(parent.field, parent.grid.is_occupied)  # as it renders
-            shadows = shadow_slabs(shown, work, cfg.shadow, parent.scan_cameras()[0])
+            shadows = scene_shadows(parent, work, cfg.shadow)
             work += shadows
         inpaint = type(self.inpainter).__name__ if self.inpainter else cfg.inpainter
         record = {

@@ -21,8 +21,11 @@ import torch
 
 from neoedit.cameras import Cameras
 from neoedit.errors import NeoError
+from neoedit.fields.composed import MaskedField
 from neoedit.fields.radiance import Field
 from neoedit.geometry import OrientedBox
+from neoedit.rendering.volume import render_weights
+from neoedit.scene import Scene
 
 SLAB_LIFT_M = 0.002
 """A shadow slab starts this far above the support (the table itself is not cut)."""
@@ -97,9 +100,7 @@ def support_around(
             sg, cl = field(points[part][keep], dirs[part][keep])
             sigma[part][keep], rgb[part][keep] = sg.float(), cl.float()
     sigma, rgb = sigma.reshape(-1, n_samples), rgb.reshape(-1, n_samples, 3)
-    alpha = 1.0 - torch.exp(-sigma * float((reach_up + reach_down) / n_samples))
-    trans = torch.cumprod(torch.cat([torch.ones_like(alpha[:, :1]), 1 - alpha[:, :-1]], 1), 1)
-    weights = alpha * trans
+    weights = render_weights(sigma, torch.full_like(sigma, (reach_up + reach_down) / n_samples))
     acc = weights.sum(1)
     colour = (weights[..., None] * rgb).sum(1) / acc.clamp_min(1e-6)[:, None]
     z = torch.as_tensor(pts[..., 2], dtype=torch.float32, device=device)
@@ -172,3 +173,12 @@ def shadow_slabs(
         for b in boxes
     ]
     return [s for s in slabs if s is not None]
+
+
+def scene_shadows(scene: Scene, boxes: list[OrientedBox], cfg: ShadowConfig) -> list[OrientedBox]:
+    """:func:`shadow_slabs` of ``scene`` as it renders (its occupancy grid applied), the
+    support seen at the elevation of its scan's cameras."""
+    if not cfg.enabled:
+        return []
+    shown = MaskedField(scene.field, scene.grid.is_occupied)
+    return shadow_slabs(shown, boxes, cfg, scene.scan_cameras()[0])
