@@ -246,12 +246,27 @@ def test_remove_end_to_end(trained: Path, sim_root: Path, tmp_path: Path, capsys
     assert (
         main(
             ["remove", str(trained), "--box", str(box_file), "--out", str(preview), "--no-inpaint"]
+            + ["--json", str(tmp_path / "preview.json")]
         )
         == 0
     )
     p = load_scene(preview)
     assert p.meta.cut_boxes and p.meta.parent == parent.meta.version_id
     assert p.meta.edits[-1]["type"] == "remove"
+    result = json.loads((tmp_path / "preview.json").read_text())  # --json: the same facts
+    assert result["version_id"] == p.meta.version_id and result["parent"] == p.meta.parent
+    assert result["out"] == str(preview) and result["edit"]["type"] == "remove"
+    assert result["edit"]["boxes"] == p.meta.edits[-1]["boxes"]
+    assert "seconds" in result["edit"] and "config" not in result["edit"]
+    # a result file is never written inside the new version, nor over a user's file
+    inside = ["--json", str(tmp_path / "p2" / "r.json"), "--out", str(tmp_path / "p2")]
+    assert main(["remove", str(trained), "--box", str(box_file), "--no-inpaint", *inside]) == 2
+    assert not (tmp_path / "p2").exists()
+    (tmp_path / "mine.txt").write_text("a user's notes")
+    mine = ["--json", str(tmp_path / "mine.txt"), "--out", str(tmp_path / "p3"), "--overwrite"]
+    assert main(["remove", str(trained), "--box", str(box_file), "--no-inpaint", *mine]) == 2
+    assert (tmp_path / "mine.txt").read_text() == "a user's notes"
+    assert not (tmp_path / "p3").exists()
 
     # the full edit: inpainted and trained into the weights
     out = tmp_path / "removed"

@@ -371,10 +371,20 @@ def test_a_preview_plan_trains_nothing_and_each_step_sees_the_last(
     )
     out = tmp_path / "store"
     assert (
-        main(["plan", str(move_scene), str(plan), "--out", str(out), "--preview", *SPARSE_ARGS])
+        main(
+            ["plan", str(move_scene), str(plan), "--out", str(out), "--preview", *SPARSE_ARGS]
+            + ["--json", str(tmp_path / "plan_result.json")]
+        )
         == 0
     )
     moved, removed = load_scene(out / "step_1"), load_scene(out / "step_2")
+    result = json.loads((tmp_path / "plan_result.json").read_text())
+    assert [s["step"] for s in result["steps"]] == [1, 2]
+    assert [s["version_id"] for s in result["steps"]] == [
+        moved.meta.version_id,
+        removed.meta.version_id,
+    ]
+    assert result["steps"][1]["parent"] == moved.meta.version_id
     assert moved.meta.moves and moved.meta.edits[-1]["method"] == "preview"
     # step 2 queried the preview: the mug was found where step 1 put it
     target = OrientedBox.from_dict(moved.meta.moves[0]["target"])

@@ -232,9 +232,14 @@ def test_moved_version_is_self_contained_and_moves_again(
     (tmp_path / "box.json").write_text(box)
     preview = tmp_path / "preview"
     cmd = ["move", str(scene_copy), "--box", str(tmp_path / "box.json"), "--translate"]
-    assert main([*cmd, "0.1", "0.05", "0", "--yaw", "30", "--out", str(preview), "--preview"]) == 0
+    result_file = tmp_path / "move.json"
+    args = ["--out", str(preview), "--preview", "--json", str(result_file)]
+    assert main([*cmd, "0.1", "0.05", "0", "--yaw", "30", *args]) == 0
     p = load_scene(preview)
     assert p.meta.moves and p.meta.edits[-1]["method"] == "preview"
+    result = json.loads(result_file.read_text())
+    assert result["version_id"] == p.meta.version_id and result["edit"]["type"] == "move"
+    assert result["edit"]["target_boxes"] == [p.meta.moves[0]["target"]]
     assert main(["render", str(preview), "--views", "eval", "--out", str(tmp_path / "r")]) == 0
     assert len(list((tmp_path / "r" / "images").glob("*.png"))) >= 1
     # the preview composes at render time: the target box now holds the object, and the

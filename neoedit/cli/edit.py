@@ -45,8 +45,12 @@ class RemoveCommand:
     under the masks lies."""
     edit: tyro.conf.OmitArgPrefixes[RemoveConfig] = dataclasses.field(default_factory=RemoveConfig)
     query: QueryConfig = dataclasses.field(default_factory=QueryConfig)
+    json: Path | None = None
+    """Also write the result here as JSON (the new version, its parent, the boxes, seconds
+    and timings of every stage)."""
     overwrite: bool = False
-    """Replace OUT if it exists (never the input scene)."""
+    """Replace OUT if it exists (never the input scene), and an existing --json file that
+    holds JSON that is no dataset or scene file."""
     device: str = "auto"
 
     def run(self) -> None:
@@ -55,6 +59,7 @@ class RemoveCommand:
         from neoedit.edit.remove import Remove, write_report
         from neoedit.scene import save_scene
 
+        check_json_output(self.json, self.out, (self.scene, self.box, self.masks), self.overwrite)
         with edit_lock(self.out):
             scene = start_edit(
                 self.scene,
@@ -71,6 +76,7 @@ class RemoveCommand:
                 child,
                 extras=lambda d: write_report(d / "report", scene, child, removal.strips),
             )
+        write_result(self.json, self.out, child)
         rec = child.meta.edits[-1]
         console.print(
             f"wrote {self.out} (version {child.meta.version_id}, parent {child.meta.parent}) in "
@@ -100,6 +106,37 @@ def start_edit(
         raise NeoError(f"--masks {target[2]}: not a folder")  # before the scene loads
     check_output(scene_dir, out, overwrite)
     return load_scene(scene_dir, resolve_device(device))
+
+
+def check_json_output(
+    path: Path | None, out: Path, inputs: tuple[Path | None, ...], overwrite: bool
+) -> None:
+    """A --json result file may be written: not an input, not inside OUT (a scene), and
+    an existing file only with --overwrite (checked before any work)."""
+    from neoedit.utils.io import check_writable_output
+
+    if path is not None:
+        check_writable_output(path, [*inputs, out], "json", overwrite)
+
+
+def edit_result(out: Path, child: Scene) -> dict:
+    """What a script wants to know about a new version: where it is, its place in the
+    history and its edit's record (boxes, method, seconds, timings; not the full config)."""
+    record = {k: v for k, v in child.meta.edits[-1].items() if k != "config"}
+    return {
+        "out": str(out),
+        "version_id": child.meta.version_id,
+        "parent": child.meta.parent,
+        "edit": record,
+        "report": str(out / "report"),
+    }
+
+
+def write_result(path: Path | None, out: Path, child: Scene) -> None:
+    from neoedit.utils.io import atomic_write_json
+
+    if path is not None:
+        atomic_write_json(path, edit_result(out, child))
 
 
 def find_boxes(
@@ -167,8 +204,12 @@ class MoveCommand:
     edit: MoveConfig = dataclasses.field(default_factory=MoveConfig)
     """Everything else of the edit (--edit.distill.render-steps, --edit.remove.inpainter, ...)."""
     query: QueryConfig = dataclasses.field(default_factory=QueryConfig)
+    json: Path | None = None
+    """Also write the result here as JSON (the new version, its parent, the source and
+    target boxes, the transforms, seconds and timings)."""
     overwrite: bool = False
-    """Replace OUT if it exists (never the input scene)."""
+    """Replace OUT if it exists (never the input scene), and an existing --json file that
+    holds JSON that is no dataset or scene file."""
     device: str = "auto"
 
     def run(self) -> None:
@@ -179,6 +220,8 @@ class MoveCommand:
         from neoedit.scene import save_scene
 
         transform = self.motion()
+        inputs = (self.scene, self.box, self.masks, self.transform)
+        check_json_output(self.json, self.out, inputs, self.overwrite)
         with edit_lock(self.out):
             scene = start_edit(
                 self.scene,
@@ -194,6 +237,7 @@ class MoveCommand:
             save_scene(
                 self.out, child, extras=lambda d: write_report(d / "report", scene, child, [])
             )
+        write_result(self.json, self.out, child)
         rec = child.meta.edits[-1]
         console.print(
             f"wrote {self.out} ({rec['method']}, version {child.meta.version_id}, parent "

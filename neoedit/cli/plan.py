@@ -43,17 +43,23 @@ class PlanCommand:
     query: QueryConfig = dataclasses.field(default_factory=QueryConfig)
     views: int = 3
     """Held-out views in plan.png."""
+    json: Path | None = None
+    """Also write the result here as JSON: every step's version folder, id, boxes, seconds
+    and timings (written when the whole plan ran)."""
+    overwrite: bool = False
+    """Replace an existing --json file that holds JSON that is no dataset or scene file
+    (OUT, the store, is always new)."""
     device: str = "auto"
 
     def run(self) -> None:
         self.query.check()  # before any loading or training
-        from neoedit.cli.edit import find_boxes
+        from neoedit.cli.edit import check_json_output, edit_result, find_boxes
         from neoedit.edit.plan import apply_action, check_plan, load_plan, plan_boxes
         from neoedit.edit.remove import write_report
         from neoedit.scene import load_scene, save_scene
         from neoedit.storage import SceneStore
         from neoedit.utils.device import resolve_device
-        from neoedit.utils.io import check_writable_output
+        from neoedit.utils.io import atomic_write_json, check_writable_output
         from neoedit.viz.versions import pick_views, render_versions
 
         if self.views < 1:
@@ -64,6 +70,7 @@ class PlanCommand:
         if self.out.exists():
             raise NeoError(f"{self.out} already exists: a plan writes a new scene store")
         check_writable_output(self.out, [self.scene, self.plan], "store")
+        check_json_output(self.json, self.out, (self.scene, self.plan), self.overwrite)
         scene = load_scene(self.scene, resolve_device(self.device))
         if scene.meta.language is None and any(a.prompt for a in actions):
             raise NeoError("this scene has no language field: give the plan's steps a box")
@@ -77,6 +84,7 @@ class PlanCommand:
         views = pick_views(scene, self.views)
         columns = [render_versions([scene], views)]
         names = ["step_0"]
+        steps = []
         with store.lock():
             save_scene(self.out / "step_0", scene)
             for k, action in enumerate(actions, 1):
@@ -96,10 +104,14 @@ class PlanCommand:
                 console.print(
                     f"step {k}: {escape(str(action.label))} -> {escape(str(out))} in {rec['seconds']:.1f} s"
                 )
+                steps.append({"step": k, "action": action.label, **edit_result(out, child)})
                 columns.append(render_versions([child], views))
                 names.append(f"step_{k}")
                 scene = child
         self._strip(columns, names)
+        if self.json is not None:
+            result = {"out": str(self.out), "plan_png": str(self.out / "plan.png"), "steps": steps}
+            atomic_write_json(self.json, result)
         console.print(
             f"wrote {self.out} ({len(names)} versions); pictures in {self.out / 'plan.png'}"
         )
