@@ -246,6 +246,16 @@ def section_edit(out: Path, prompt: str) -> dict:
     rc_m, t_m, text_m = run(move)
     print(text_m)
     box = json.loads((out / "query_box.json").read_text()) if rc_q == 0 else None
+    footprint = None
+    if rc_r == 0:  # where the can stood against the floor around it (0: seamless)
+        from neoedit.eval.footprint import removal_footprint
+        from neoedit.geometry import OrientedBox
+        from neoedit.scene import load_scene
+
+        removed = load_scene(out / "removed")
+        footprint = removal_footprint(
+            removed, OrientedBox.from_dict(removed.meta.edits[-1]["boxes"][0])
+        ).to_dict()
     scenes = [scene] + [out / d for d, rc in (("removed", rc_r), ("moved", rc_m)) if rc == 0]
     strip = _edit_strip(scenes, out / "processed", out / "edit_strip.png")
     return {
@@ -256,6 +266,7 @@ def section_edit(out: Path, prompt: str) -> dict:
         "remove_exit": rc_r,
         "remove_s": round(t_r, 1),
         "remove_output": " ".join(text_r.split())[-600:],
+        "removal_footprint": footprint,
         "move_exit": rc_m,
         "move_s": round(t_m, 1),
         "move_output": " ".join(text_m.split())[-600:],

@@ -14,7 +14,7 @@ from neoedit.rendering.intervals import RayIntervals, cut_boxes, near_far_interv
 from neoedit.rendering.occupancy import OccupancyGrid, OccupancyGridConfig
 from neoedit.rendering.renderer import RenderConfig, render_rays
 from neoedit.rendering.samplers import pdf_edges, uniform_edges
-from neoedit.rendering.volume import render_weights
+from neoedit.rendering.volume import light_missing, render_weights
 
 
 def _rays(n: int, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -141,6 +141,26 @@ def test_weights_formula():
     w = render_weights(sigma, deltas)
     expected = [0.0, (1 - math.exp(-0.5)), math.exp(-0.5) * (1 - math.exp(-1.0))]
     torch.testing.assert_close(w[0], torch.tensor(expected))
+
+
+def test_light_missing_is_the_light_that_does_not_end_in_the_window():
+    """Against the weights summed sample by sample (transmittance times opacity)."""
+    g = torch.Generator().manual_seed(3)
+    sigma = torch.rand(5, 16, generator=g, dtype=torch.double) * 8.0
+    deltas = torch.full((5, 16), 0.1, dtype=torch.double)
+    t_mid = 0.05 + 0.1 * torch.arange(16, dtype=torch.double).expand(5, 16)
+    lo = torch.tensor([-1.0, 0.0, 0.31, 0.5, 2.0], dtype=torch.double)
+    hi = torch.tensor([-0.5, 1.6, 0.52, 0.99, 5.0], dtype=torch.double)
+    got = light_missing(render_weights(sigma, deltas), t_mid, lo, hi)
+    for r in range(5):
+        passed, ended = 1.0, 0.0
+        for k in range(16):
+            alpha = 1.0 - math.exp(-float(sigma[r, k] * deltas[r, k]))
+            if lo[r] <= t_mid[r, k] <= hi[r]:
+                ended += passed * alpha
+            passed *= 1.0 - alpha
+        assert abs(float(got[r]) - (1.0 - ended)) < 1e-12
+    assert float(got[0]) == 1.0 and float(got[4]) == 1.0  # windows that hold no sample
 
 
 class RecordingSphere(SphereField):

@@ -1,5 +1,6 @@
-"""The shadow an object casts on its support is found around its footprint and joins the
-removal (a field with a known dark patch on a plane)."""
+"""The support around a box, on a field with a known dark patch on a plane: the shadow an
+object casts is found around its footprint and joins the removal; a removal's footprint is
+measured against the ring of support around it."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ from torch import nn
 
 from neoedit.edit.shadow import ShadowConfig, shadow_slab, shadow_slabs
 from neoedit.errors import NeoError
+from neoedit.eval.footprint import footprint_contrast
 from neoedit.geometry import OrientedBox
 
 OBJECT = OrientedBox((0.0, 0.0, 0.05), (0.06, 0.04, 0.1), 30.0)
@@ -71,3 +73,22 @@ def test_no_shadow_no_slab_and_a_dark_spot_apart_is_not_a_shadow():
 def test_bad_shadow_settings_are_refused(field, value):
     with pytest.raises(NeoError, match=field.replace("_", "-")):
         ShadowConfig(**{field: value}).check()
+
+
+def test_a_footprint_darker_than_its_ring_is_measured_and_a_seamless_one_is_not():
+    def disc(x, y):  # a dark disc where the object stood (its box is 6 x 4 cm)
+        return (x**2 + y**2) < 0.035**2
+
+    stained = footprint_contrast(Table(disc), OBJECT)
+    assert stained.footprint_rgb == [76.5] * 3 and stained.ring_rgb == [153.0] * 3
+    assert stained.delta == 76.5
+    assert stained.footprint_opacity > 0.99 and stained.ring_opacity > 0.99
+    clean = footprint_contrast(Table(lambda x, y: torch.zeros_like(x, dtype=torch.bool)), OBJECT)
+    assert clean.delta == 0.0
+
+    class Hole(Table):  # the table missing under the object: the rays find nothing there
+        def density(self, points):
+            return torch.where(disc(points[:, 0], points[:, 1]), 0.0, super().density(points))
+
+    hole = footprint_contrast(Hole(disc), OBJECT)
+    assert hole.footprint_opacity == 0.0 and hole.ring_opacity > 0.99

@@ -17,14 +17,13 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.ndimage
-import torch
 
 from neoedit.cameras import Cameras
 from neoedit.errors import NeoError
 from neoedit.fields.composed import MaskedField
 from neoedit.fields.radiance import Field
 from neoedit.geometry import OrientedBox
-from neoedit.rendering.volume import render_weights
+from neoedit.rendering.support import scan_elevation_deg, support_around
 from neoedit.scene import Scene
 
 SLAB_LIFT_M = 0.002
@@ -58,59 +57,6 @@ class ShadowConfig:
             raise NeoError(f"{where}.darker must be < 1")
 
 
-@torch.no_grad()
-def support_around(
-    field: Field,
-    box: OrientedBox,
-    half_extent_m: float,
-    cfg: ShadowConfig,
-    elevation_deg: float,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Render the support around ``box`` on a grid in the box's frame (``half_extent_m``
-    each way, ``cfg.cell_m`` apart), each cell by a ray that comes down at
-    ``elevation_deg`` from outside, heading towards the box (so the object does not stand
-    in front of the support it shades, and a floor learnt from oblique photos is seen as
-    they saw it): (luminance (n,n), on_support (n,n) bool: the ray ends opaque within
-    ``cfg.band_m`` of the box's bottom, grid coordinates (n,))."""
-    axis = np.arange(-half_extent_m, half_extent_m + 1e-9, cfg.cell_m)
-    gx, gy = np.meshgrid(axis, axis, indexing="ij")
-    bottom = box.center_m[2] - box.size_m[2] / 2
-    local = np.stack([gx.ravel(), gy.ravel()], 1)
-    xy = local @ box.rotation[:2, :2].T + box.center_m[:2]
-    out = xy - box.center_m[:2]
-    out /= np.maximum(np.linalg.norm(out, axis=1, keepdims=True), 1e-9)
-    el = np.radians(elevation_deg)
-    heading = np.concatenate([-np.cos(el) * out, np.full((len(xy), 1), -np.sin(el))], 1)
-    ends = np.concatenate([xy, np.full((len(xy), 1), bottom)], 1)
-    # from 4 bands above the support down to 2 bands below it, along the ray
-    reach_up, reach_down, n_samples = 4 * cfg.band_m / np.sin(el), 2 * cfg.band_m / np.sin(el), 64
-    t = -reach_up + (reach_up + reach_down) * (np.arange(n_samples) + 0.5) / n_samples
-    pts = ends[:, None, :] + t[None, :, None] * heading[:, None, :]
-    device = field.aabb.device
-    points = torch.as_tensor(pts.reshape(-1, 3), dtype=torch.float32, device=device)
-    dirs = torch.as_tensor(np.repeat(heading, n_samples, 0), dtype=torch.float32, device=device)
-    aabb = field.aabb.to(device)
-    inside = ((points >= aabb[0]) & (points <= aabb[1])).all(-1)
-    sigma = torch.zeros(len(points), device=device)
-    rgb = torch.zeros(len(points), 3, device=device)
-    for s in range(0, len(points), 1 << 16):
-        part = slice(s, s + (1 << 16))
-        keep = inside[part]
-        if keep.any():
-            sg, cl = field(points[part][keep], dirs[part][keep])
-            sigma[part][keep], rgb[part][keep] = sg.float(), cl.float()
-    sigma, rgb = sigma.reshape(-1, n_samples), rgb.reshape(-1, n_samples, 3)
-    weights = render_weights(sigma, torch.full_like(sigma, (reach_up + reach_down) / n_samples))
-    acc = weights.sum(1)
-    colour = (weights[..., None] * rgb).sum(1) / acc.clamp_min(1e-6)[:, None]
-    z = torch.as_tensor(pts[..., 2], dtype=torch.float32, device=device)
-    depth = (weights * z).sum(1) / acc.clamp_min(1e-6)
-    lum = colour @ torch.tensor([0.299, 0.587, 0.114], device=device)
-    on_support = (acc > 0.9) & ((depth - bottom).abs() < cfg.band_m)
-    n = len(axis)
-    return lum.reshape(n, n).cpu().numpy(), on_support.reshape(n, n).cpu().numpy(), axis
-
-
 def shadow_slab(
     field: Field, box: OrientedBox, cfg: ShadowConfig, elevation_deg: float = 45.0
 ) -> OrientedBox | None:
@@ -120,12 +66,10 @@ def shadow_slab(
     size = float(max(box.size_m[0], box.size_m[1]))
     reach = cfg.reach * size
     half = float(max(box.half_extents[:2])) + reach + cfg.ring * size
-    lum, support, axis = support_around(field, box, half, cfg, elevation_deg)
+    view = support_around(field, box, half, cfg.cell_m, cfg.band_m, elevation_deg)
+    lum, support, axis = view.luminance(), view.on_support(cfg.band_m), view.axis
     gx, gy = np.meshgrid(axis, axis, indexing="ij")
-    # distance from the footprint (0 inside it), in the box's frame
-    dx = np.maximum(np.abs(gx) - box.half_extents[0], 0.0)
-    dy = np.maximum(np.abs(gy) - box.half_extents[1], 0.0)
-    away = np.hypot(dx, dy)
+    away = view.away_m(box)  # from the footprint (0 inside it), in the box's frame
     ring = support & (away > reach)
     if ring.sum() < 20:
         return None
@@ -150,15 +94,6 @@ def shadow_slab(
         (float(hi[0] - lo[0]), float(hi[1] - lo[1]), cfg.band_m),
         box.yaw_deg,
     )
-
-
-def scan_elevation_deg(cameras: Cameras, box: OrientedBox) -> float:
-    """Median elevation [deg] of the scan's cameras seen from the box's bottom centre,
-    kept within 15-75 deg."""
-    foot = np.asarray(box.center_m, dtype=np.float64) - [0.0, 0.0, box.size_m[2] / 2]
-    rel = cameras.camera_to_world[:, :3, 3] - foot
-    el = np.degrees(np.arctan2(rel[:, 2], np.linalg.norm(rel[:, :2], axis=1)))
-    return float(np.clip(np.median(el), 15.0, 75.0))
 
 
 def shadow_slabs(

@@ -43,3 +43,15 @@ def opacity_penalty(sigma: torch.Tensor, scale_m: float = 0.01) -> torch.Tensor:
     """Mean opacity of ``scale_m``-long steps at densities ``sigma`` [1/m]: a bounded penalty
     that pushes density towards zero (sparsity in training, L_reg in an edit's box)."""
     return torch.mean(1.0 - torch.exp(-scale_m * sigma))
+
+
+def light_missing(
+    weights: torch.Tensor, t_mid: torch.Tensor, t_lo: torch.Tensor, t_hi: torch.Tensor
+) -> torch.Tensor:
+    """(N,) the share of each ray's light that does not end in [``t_lo``, ``t_hi``] (N,):
+    1 - the summed weights of the samples whose midpoint lies there. A ray that sees a
+    surface there (a structure-from-motion point) should end there: the expected depth
+    alone cannot tell an opaque surface from a faint one at the same distance, and light
+    stopped before the window (a lid of fog nearer the camera) counts as missing too."""
+    inside = (t_mid >= t_lo[:, None]) & (t_mid <= t_hi[:, None])
+    return 1.0 - (weights * inside).sum(-1)

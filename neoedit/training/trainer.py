@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from neoedit.cameras.rays import CameraTensors
+from neoedit.cameras.rays import CameraTensors, RayBundle
 from neoedit.data import SceneData, load_scene_data
 from neoedit.data.downscale import DataConfig
 from neoedit.data.scan import scan_from_record, scan_record
@@ -24,7 +24,7 @@ from neoedit.fields.room import RoomField
 from neoedit.language.training import LanguageTrainConfig, train_language
 from neoedit.rendering.occupancy import OccupancyGridConfig, rebuild_grid
 from neoedit.rendering.renderer import RenderConfig, render_image, render_rays
-from neoedit.rendering.volume import distortion_loss, opacity_penalty
+from neoedit.rendering.volume import distortion_loss, light_missing, opacity_penalty
 from neoedit.scene import Scene, SceneMeta, load_scene, save_scene
 from neoedit.storage import find_store, is_store
 from neoedit.training.appearance import PhotoAppearance
@@ -38,6 +38,9 @@ from neoedit.training.defaults import (
 from neoedit.utils.device import resolve_device
 from neoedit.utils.optim import field_param_groups, load_optimizer_state, make_adam
 from neoedit.utils.progress import make_progress
+
+SPARSE_POINT_SLACK = 0.03
+"""A structure-from-motion point's depth is trusted to this fraction of its distance."""
 
 
 @dataclass
@@ -74,6 +77,12 @@ class TrainConfig:
     """Where the depth is sparse (under 5 % of the pixels have one: the structure-from-motion
     points ``neo import`` writes for photos), this many rays per step more are drawn from
     the pixels that have depth, so the depth loss sees them every step (0: none)."""
+    sparse_opacity_weight: float = 0.05
+    """With sparse depth, weight of the share of a ray's light that does not end within 3 %
+    of its structure-from-motion point, for points inside the scene box: the photos saw a
+    surface there. Without it, a plain floor on beer_can trained to 3-5 % opacity (the
+    learned background painted it from far away) and edits lost their support surface
+    (0: off)."""
     mlp_lr_factor: float = 1.0
     """Learning rate of the MLPs relative to the hash grid's (edits lower it: the MLPs are
     shared by the whole scene, the table entries are local)."""
@@ -262,9 +271,7 @@ class Trainer:
             if self.loss_mask is not None:
                 valid &= self.loss_mask[img, v, u]
             if valid.any():
-                loss = loss + self.cfg.depth_loss_weight * torch.mean(
-                    torch.abs(out["depth_z"][valid] - depth_gt[valid])
-                )
+                loss = loss + self.depth_loss(out, rays, depth_gt, valid)
         if self.cfg.sparsity_loss_weight > 0:
             aabb = field.aabb
             u = torch.rand(
@@ -283,6 +290,32 @@ class Trainer:
         if self.appearance is not None:
             self.appearance.step()
         return float(mse.detach())
+
+    def depth_loss(
+        self,
+        out: dict[str, torch.Tensor],
+        rays: RayBundle,
+        depth_gt: torch.Tensor,
+        valid: torch.Tensor,
+    ) -> torch.Tensor:
+        """L1 on z-depth where the data has one; with sparse depth, also the light that
+        passes a structure-from-motion point inside the scene box (the surface there must be
+        opaque, not a faint layer a learned background paints over)."""
+        loss = self.cfg.depth_loss_weight * torch.mean(
+            torch.abs(out["depth_z"][valid] - depth_gt[valid])
+        )
+        if self.sparse_depth is None or self.cfg.sparse_opacity_weight <= 0:
+            return loss
+        t_end = depth_gt / rays.z_scale
+        aabb = self.scene.field.aabb
+        point = rays.origins + rays.directions * t_end[:, None]
+        keep = valid & ((point >= aabb[0]) & (point <= aabb[1])).all(-1)
+        if not keep.any():
+            return loss
+        t_end = t_end[keep]
+        lo, hi = t_end * (1.0 - SPARSE_POINT_SLACK), t_end * (1.0 + SPARSE_POINT_SLACK)
+        missing = light_missing(out["weights"][keep], out["t_mid"][keep], lo, hi)
+        return loss + self.cfg.sparse_opacity_weight * missing.mean()
 
     def finish_grid(self) -> None:
         """Replace the grid's running maximum (it still remembers densities the field has

@@ -165,7 +165,12 @@ def check_train_options(
     for name in ("lr", "lr_final_factor"):
         value = getattr(train, name)
         _require(finite_number(value) and value > 0, f"--{name.replace('_', '-')} must be > 0")
-    for name in ("weight_decay_mlp", "distortion_loss_weight", "mlp_lr_factor"):
+    for name in (
+        "weight_decay_mlp",
+        "distortion_loss_weight",
+        "mlp_lr_factor",
+        "sparse_opacity_weight",
+    ):
         value = getattr(train, name)
         _require(finite_number(value) and value >= 0, f"--{name.replace('_', '-')} must be >= 0")
     for name in ("sparsity_loss_weight", "depth_loss_weight"):
