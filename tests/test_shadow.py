@@ -9,10 +9,13 @@ import pytest
 import torch
 from torch import nn
 
+from neoedit.cameras import Cameras
+from neoedit.cameras.cameras import look_at
 from neoedit.edit.shadow import ShadowConfig, shadow_slab, shadow_slabs
 from neoedit.errors import NeoError
-from neoedit.eval.footprint import footprint_contrast
+from neoedit.eval.footprint import FootprintContrast, footprint_contrast
 from neoedit.geometry import OrientedBox
+from neoedit.rendering.renderer import RenderConfig
 
 OBJECT = OrientedBox((0.0, 0.0, 0.05), (0.06, 0.04, 0.1), 30.0)
 
@@ -75,20 +78,38 @@ def test_bad_shadow_settings_are_refused(field, value):
         ShadowConfig(**{field: value}).check()
 
 
+def _ring_of_cameras(n: int = 8) -> Cameras:
+    eyes = [(0.4 * np.cos(a), 0.4 * np.sin(a), 0.4) for a in np.linspace(0, 2 * np.pi, n, False)]
+    c2w = np.stack([look_at(np.array(e), np.zeros(3)) for e in eyes])
+    return Cameras.shared(c2w, 100.0, 100.0, 64.0, 48.0, 128, 96)
+
+
+def _contrast(field: Table) -> FootprintContrast:
+    black = torch.zeros(3)
+    render = RenderConfig(n_coarse_samples=256, n_samples=64)
+    return footprint_contrast(field, None, black, render, _ring_of_cameras(), OBJECT)
+
+
 def test_a_footprint_darker_than_its_ring_is_measured_and_a_seamless_one_is_not():
     def disc(x, y):  # a dark disc where the object stood (its box is 6 x 4 cm)
         return (x**2 + y**2) < 0.035**2
 
-    stained = footprint_contrast(Table(disc), OBJECT)
-    assert stained.footprint_rgb == [76.5] * 3 and stained.ring_rgb == [153.0] * 3
-    assert stained.delta == 76.5
+    stained = _contrast(Table(disc))
+    assert stained.views == 8
+    np.testing.assert_allclose(stained.footprint_rgb, [76.5] * 3, atol=1.0)
+    np.testing.assert_allclose(stained.ring_rgb, [153.0] * 3, atol=1.0)
+    assert abs(stained.delta - 76.5) < 2.0
     assert stained.footprint_opacity > 0.99 and stained.ring_opacity > 0.99
-    clean = footprint_contrast(Table(lambda x, y: torch.zeros_like(x, dtype=torch.bool)), OBJECT)
-    assert clean.delta == 0.0
+    assert _contrast(Table(lambda x, y: torch.zeros_like(x, dtype=torch.bool))).delta < 1.0
 
-    class Hole(Table):  # the table missing under the object: the rays find nothing there
+    def wide(x, y):
+        return (x**2 + y**2) < 0.05**2
+
+    class Hole(Table):  # a 1 cm table missing under the object: those rays see the background
         def density(self, points):
-            return torch.where(disc(points[:, 0], points[:, 1]), 0.0, super().density(points))
+            top = (points[:, 2] < 0.0) & (points[:, 2] > -0.01)
+            return torch.where(top & ~wide(points[:, 0], points[:, 1]), 2000.0, 0.0)
 
-    hole = footprint_contrast(Hole(disc), OBJECT)
-    assert hole.footprint_opacity == 0.0 and hole.ring_opacity > 0.99
+    hole = _contrast(Hole(wide))
+    assert hole.footprint_opacity < 0.01 and hole.ring_opacity > 0.99
+    assert hole.footprint_rgb == [0.0, 0.0, 0.0] and hole.delta > 150

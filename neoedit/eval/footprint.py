@@ -2,76 +2,147 @@
 
 Where an object stood, a good removal shows the table or floor as it continues around the
 footprint; a poor one leaves a lighter or darker disc, a ghost of the object's base, or a
-hole. :func:`footprint_contrast` renders the support around the removed box with
-:func:`~neoedit.rendering.support.support_around` (rays coming down at the scan's
-elevation: :func:`removal_footprint` for a scene version) and compares the median colour inside the footprint with the median colour of a
-ring around it, beyond the reach of the object's shadow.
+hole. :func:`footprint_contrast` looks at points of the support plane (the box's bottom)
+from the scan's own cameras — one ray from a camera to each point, rendered as a photo of
+that camera would be, the background or room included — and compares the median colour
+over the footprint with the median colour over a ring around it, beyond the reach of the
+object's shadow.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 
 import numpy as np
+import torch
 
-from neoedit.fields.composed import MaskedField
+from neoedit.cameras import Cameras
+from neoedit.cameras.rays import RayBundle
+from neoedit.fields.background import Background
 from neoedit.fields.radiance import Field
-from neoedit.fields.suppressed import with_removals
 from neoedit.geometry import OrientedBox
-from neoedit.rendering.support import scan_elevation_deg, support_around
+from neoedit.rendering.occupancy import OccupancyGrid
+from neoedit.rendering.renderer import RenderConfig, render_chunked
 from neoedit.scene import Scene
+
+MAX_POINTS = 1500
+"""Support points per region (footprint, ring), evenly thinned beyond this."""
 
 
 @dataclass
 class FootprintContrast:
-    """Median colours (0-255) of the footprint and of the ring, their largest channel
-    difference, and the mean opacity the support rays found in each."""
+    """Median colours (0-255) of the footprint and of the ring as the scan's cameras see
+    them, their largest channel difference, and the mean opacity of the box's field along
+    those rays."""
 
     footprint_rgb: list[float]
     ring_rgb: list[float]
     delta: float
     """max over R, G, B of |footprint - ring| (0-255): 0 is a seamless footprint."""
     footprint_opacity: float
+    """How much of the light the box's own field stops (the rest comes from the room or
+    background: a support the field never learnt)."""
     ring_opacity: float
+    views: int
 
     def to_dict(self) -> dict:
         return asdict(self)
 
 
-def footprint_contrast(
-    field: Field,
-    box: OrientedBox,
-    elevation_deg: float = 45.0,
-    inner: float = 0.8,
-    ring: tuple[float, float] = (1.0, 1.5),
-    cell_m: float = 0.004,
-    band_m: float = 0.01,
-) -> FootprintContrast:
-    """The footprint (``box``'s bottom face shrunk to ``inner`` of its size) against the
-    ring from ``ring[0]`` to ``ring[1]`` footprint sizes (the longer side) away from it,
-    the support seen at ``elevation_deg``."""
+def support_points(
+    box: OrientedBox, inner: float, ring: tuple[float, float], cell_m: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """World points (N,3) on the plane of ``box``'s bottom: its footprint shrunk to
+    ``inner``, and the ring ``ring[0]``-``ring[1]`` footprint sizes (the longer side) away."""
     size = float(max(box.size_m[0], box.size_m[1]))
     half = float(max(box.half_extents[:2])) + ring[1] * size
-    view = support_around(field, box, half, cell_m, band_m, elevation_deg)
-    gx, gy = np.meshgrid(view.axis, view.axis, indexing="ij")
-    foot = (np.abs(gx) <= inner * box.half_extents[0]) & (np.abs(gy) <= inner * box.half_extents[1])
-    away = view.away_m(box)
+    axis = np.arange(-half, half + 1e-9, cell_m)
+    gx, gy = (g.ravel() for g in np.meshgrid(axis, axis, indexing="ij"))
+    hx, hy = box.half_extents[:2]
+    away = np.hypot(np.maximum(np.abs(gx) - hx, 0.0), np.maximum(np.abs(gy) - hy, 0.0))
+    foot = (np.abs(gx) <= inner * hx) & (np.abs(gy) <= inner * hy)
     around = (away > ring[0] * size) & (away <= ring[1] * size)
-    foot_rgb = 255.0 * np.median(view.rgb[foot], 0)
-    ring_rgb = 255.0 * np.median(view.rgb[around], 0)
-    return FootprintContrast(
-        footprint_rgb=np.round(foot_rgb, 1).tolist(),
-        ring_rgb=np.round(ring_rgb, 1).tolist(),
-        delta=round(float(np.abs(foot_rgb - ring_rgb).max()), 1),
-        footprint_opacity=round(float(view.opacity[foot].mean()), 3),
-        ring_opacity=round(float(view.opacity[around].mean()), 3),
+    bottom = box.center_m[2] - box.size_m[2] / 2
+
+    def world(mask: np.ndarray) -> np.ndarray:
+        local = np.stack([gx[mask], gy[mask]], 1)
+        local = local[:: max(1, int(np.ceil(len(local) / MAX_POINTS)))]
+        xy = local @ box.rotation[:2, :2].T + box.center_m[:2]
+        return np.concatenate([xy, np.full((len(xy), 1), bottom)], 1)
+
+    return world(foot), world(around)
+
+
+def facing_views(cameras: Cameras, point: np.ndarray, views: int) -> list[int]:
+    """Up to ``views`` cameras, evenly spread over the scan, in whose image ``point`` lies."""
+    seen = []
+    for i in range(len(cameras.camera_to_world)):
+        uv, z = cameras.project(i, point[None])
+        u, v = uv[0]
+        if z[0] > 0 and 0 <= u < cameras.width[i] and 0 <= v < cameras.height[i]:
+            seen.append(i)
+    if len(seen) <= views:
+        return seen
+    return [seen[int(k)] for k in np.linspace(0, len(seen) - 1, views).round()]
+
+
+def _rays(cameras: Cameras, index: int, points: np.ndarray) -> RayBundle:
+    c2w = cameras.camera_to_world[index]
+    d = points - c2w[:3, 3]
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    as_t = lambda a: torch.as_tensor(a, dtype=torch.float32)  # noqa: E731
+    return RayBundle(
+        as_t(np.broadcast_to(c2w[:3, 3], d.shape).copy()), as_t(d), as_t(d @ -c2w[:3, 2])
     )
 
 
-def removal_footprint(scene: Scene, box: OrientedBox) -> FootprintContrast:
-    """:func:`footprint_contrast` of ``scene`` as it renders (occupancy grid and render-time
-    removals applied), the support seen at the elevation of its scan's cameras."""
+@torch.no_grad()
+def footprint_contrast(
+    field: Field,
+    grid: OccupancyGrid | None,
+    background: Background,
+    render: RenderConfig,
+    cameras: Cameras,
+    box: OrientedBox,
+    cut: Sequence[OrientedBox] = (),
+    views: int = 8,
+    inner: float = 0.8,
+    ring: tuple[float, float] = (1.0, 1.5),
+    cell_m: float = 0.004,
+) -> FootprintContrast:
+    """The footprint of ``box`` against the ring around it, seen from ``views`` of
+    ``cameras`` (those that have the footprint in their image)."""
+    foot, around = support_points(box, inner, ring, cell_m)
+    bottom_centre = np.asarray(box.center_m) - [0.0, 0.0, box.size_m[2] / 2]
+    chosen = facing_views(cameras, bottom_centre, views)
+    if not chosen:
+        raise ValueError("no camera has the footprint in its image")
+    device = field.aabb.device
+    seen: dict[str, list[torch.Tensor]] = {"rgb_f": [], "rgb_r": [], "acc_f": [], "acc_r": []}
+    for i in chosen:
+        for key, points in (("f", foot), ("r", around)):
+            rays = _rays(cameras, i, points)
+            rays = RayBundle(*(t.to(device) for t in (rays.origins, rays.directions, rays.z_scale)))
+            out = render_chunked(field, grid, rays, render, background, cut)
+            seen[f"rgb_{key}"].append(out["rgb"].float().cpu())
+            seen[f"acc_{key}"].append(out["accumulation"].float().cpu())
+    rgb_f = 255.0 * torch.cat(seen["rgb_f"]).median(0).values.numpy()
+    rgb_r = 255.0 * torch.cat(seen["rgb_r"]).median(0).values.numpy()
+    return FootprintContrast(
+        footprint_rgb=np.round(rgb_f, 1).tolist(),
+        ring_rgb=np.round(rgb_r, 1).tolist(),
+        delta=round(float(np.abs(rgb_f - rgb_r).max()), 1),
+        footprint_opacity=round(float(torch.cat(seen["acc_f"]).mean()), 3),
+        ring_opacity=round(float(torch.cat(seen["acc_r"]).mean()), 3),
+        views=len(chosen),
+    )
+
+
+def removal_footprint(scene: Scene, box: OrientedBox, views: int = 8) -> FootprintContrast:
+    """:func:`footprint_contrast` of ``scene`` as it renders, seen from its scan's cameras."""
     field, cut = scene.renderable()
-    field, _ = with_removals(MaskedField(field, scene.grid.is_occupied), [], cut)
-    elevation = scan_elevation_deg(scene.scan_cameras()[0], box)
-    return footprint_contrast(field, box, elevation)
+    cameras = scene.scan_cameras()[0]
+    return footprint_contrast(
+        field, scene.grid, scene.background, scene.meta.render, cameras, box, cut, views
+    )
