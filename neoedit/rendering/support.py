@@ -22,6 +22,8 @@ from neoedit.rendering.volume import render_weights
 
 N_SAMPLES = 64
 CHUNK = 1 << 16
+MAX_CELLS = 256
+"""Cells per side at most: a large box gets coarser cells (memory grows with their square)."""
 
 
 @dataclass
@@ -64,8 +66,10 @@ def support_around(
     elevation_deg: float,
 ) -> SupportView:
     """Render the support around ``box`` (``half_extent_m`` each way from its centre,
-    ``cell_m`` apart), each cell's ray sampled from 4 ``band_m`` above the box's bottom
-    plane to 2 below it, coming down at ``elevation_deg``."""
+    ``cell_m`` apart, or coarser: at most :data:`MAX_CELLS` a side), each cell's ray
+    sampled from 4 ``band_m`` above the box's bottom plane to 2 below it, coming down at
+    ``elevation_deg``."""
+    cell_m = max(cell_m, 2.0 * half_extent_m / (MAX_CELLS - 1))
     axis = np.arange(-half_extent_m, half_extent_m + 1e-9, cell_m)
     gx, gy = np.meshgrid(axis, axis, indexing="ij")
     bottom = box.center_m[2] - box.size_m[2] / 2
