@@ -248,14 +248,7 @@ def section_edit(out: Path, prompt: str) -> dict:
     box = json.loads((out / "query_box.json").read_text()) if rc_q == 0 else None
     footprint = None
     if rc_r == 0:  # where the can stood against the floor around it (0: seamless)
-        from neoedit.eval.footprint import removal_footprint
-        from neoedit.geometry import OrientedBox
-        from neoedit.scene import load_scene
-
-        removed = load_scene(out / "removed")
-        footprint = removal_footprint(
-            removed, OrientedBox.from_dict(removed.meta.edits[-1]["boxes"][0])
-        ).to_dict()
+        footprint = _footprints(scene, out / "removed")
     scenes = [scene] + [out / d for d, rc in (("removed", rc_r), ("moved", rc_m)) if rc == 0]
     strip = _edit_strip(scenes, out / "processed", out / "edit_strip.png")
     return {
@@ -273,6 +266,24 @@ def section_edit(out: Path, prompt: str) -> dict:
         "strip": str(strip),
         "commands": [shlex.join(c[2:]) for c in (query, remove, move)],
     }
+
+
+def _footprints(scene_dir: Path, removed_dir: Path) -> dict:
+    """The removal's footprint contrast, beside the unedited scene's (the object itself)."""
+    from neoedit.errors import NeoError
+    from neoedit.eval.footprint import removal_footprint
+    from neoedit.geometry import OrientedBox
+    from neoedit.scene import load_scene
+
+    removed = load_scene(removed_dir)
+    box = OrientedBox.from_dict(removed.meta.edits[-1]["boxes"][0])
+    try:
+        return {
+            "removed": removal_footprint(removed, box).to_dict(),
+            "unedited": removal_footprint(load_scene(scene_dir), box).to_dict(),
+        }
+    except NeoError as e:  # the edit's figures stand without it
+        return {"error": str(e)}
 
 
 def _edit_strip(scenes: list[Path], data_dir: Path, path: Path, views: int = 3) -> Path:

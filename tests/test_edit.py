@@ -258,6 +258,16 @@ def test_remove_end_to_end(trained: Path, sim_root: Path, tmp_path: Path, capsys
     assert result["out"] == str(preview) and result["edit"]["type"] == "remove"
     assert result["edit"]["boxes"] == p.meta.edits[-1]["boxes"]
     assert "seconds" in result["edit"] and "config" not in result["edit"]
+    # an earlier result is replaced only with --overwrite; the box file never
+    again = ["remove", str(trained), "--box", str(box_file), "--no-inpaint"]
+    again += ["--json", str(tmp_path / "preview.json"), "--out", str(tmp_path / "p1")]
+    assert main(again) == 2 and not (tmp_path / "p1").exists()
+    assert main([*again, "--overwrite"]) == 0
+    assert json.loads((tmp_path / "preview.json").read_text())["out"] == str(tmp_path / "p1")
+    box_text = box_file.read_text()
+    own = ["--json", str(box_file), "--out", str(tmp_path / "p4"), "--overwrite"]
+    assert main(["remove", str(trained), "--box", str(box_file), "--no-inpaint", *own]) == 2
+    assert box_file.read_text() == box_text and not (tmp_path / "p4").exists()
     # a result file is never written inside the new version, nor over a user's file
     inside = ["--json", str(tmp_path / "p2" / "r.json"), "--out", str(tmp_path / "p2")]
     assert main(["remove", str(trained), "--box", str(box_file), "--no-inpaint", *inside]) == 2

@@ -44,7 +44,8 @@ class ShadowConfig:
     """A support cell is in shadow when its luminance is at least this fraction below the
     ring's median."""
     cell_m: float = 0.004
-    """Grid spacing of the vertical rays [m]."""
+    """Grid spacing of the support's rays [m] (coarser around large boxes: at most 256
+    cells a side)."""
     band_m: float = 0.01
     """The support's rendered depth must lie within this of the box's bottom; the slab is
     this high."""
@@ -83,7 +84,7 @@ def shadow_slab(
     cells = np.concatenate(
         [np.stack([gx[shadow], gy[shadow]], 1), [[-1, -1], [1, 1]] * box.half_extents[:2]]
     )
-    lo, hi = cells.min(0) - cfg.cell_m, cells.max(0) + cfg.cell_m
+    lo, hi = cells.min(0) - view.cell_m, cells.max(0) + view.cell_m
     centre_xy = (lo + hi) / 2 @ box.rotation[:2, :2].T + box.center_m[:2]
     # from 2 mm over the support to a band over that: the removal preview's cut keeps the
     # table, whose points under the slab's footprint are inpainted as a box's low points

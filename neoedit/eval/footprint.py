@@ -6,7 +6,9 @@ hole. :func:`footprint_contrast` looks at points of the support plane (the box's
 from the scan's own cameras — one ray from a camera to each point, rendered as a photo of
 that camera would be, the background or room included — and compares the median colour
 over the footprint with the median colour over a ring around it, beyond the reach of the
-object's shadow.
+object's shadow (1-1.5 footprint sizes: the shadow search's reach and ring). It measures
+what the photos would show: where the field leaves the support to a learned background
+(low ``ring_opacity``), a footprint that shows the same background matches too.
 """
 
 from __future__ import annotations
@@ -19,11 +21,13 @@ import torch
 
 from neoedit.cameras import Cameras
 from neoedit.cameras.rays import RayBundle
+from neoedit.errors import NeoError
 from neoedit.fields.background import Background
 from neoedit.fields.radiance import Field
 from neoedit.geometry import OrientedBox
 from neoedit.rendering.occupancy import OccupancyGrid
 from neoedit.rendering.renderer import RenderConfig, render_chunked
+from neoedit.rendering.support import footprint_distance
 from neoedit.scene import Scene
 
 MAX_POINTS = 1500
@@ -54,20 +58,25 @@ def support_points(
     box: OrientedBox, inner: float, ring: tuple[float, float], cell_m: float
 ) -> tuple[np.ndarray, np.ndarray]:
     """World points (N,3) on the plane of ``box``'s bottom: its footprint shrunk to
-    ``inner``, and the ring ``ring[0]``-``ring[1]`` footprint sizes (the longer side) away."""
+    ``inner``, and the ring ``ring[0]``-``ring[1]`` footprint sizes (the longer side) away
+    (each a fixed random subset of at most :data:`MAX_POINTS`)."""
     size = float(max(box.size_m[0], box.size_m[1]))
-    half = float(max(box.half_extents[:2])) + ring[1] * size
-    axis = np.arange(-half, half + 1e-9, cell_m)
+    k = int(np.ceil((float(max(box.half_extents[:2])) + ring[1] * size) / cell_m))
+    axis = cell_m * np.arange(-k, k + 1)  # the centre is a grid point
     gx, gy = (g.ravel() for g in np.meshgrid(axis, axis, indexing="ij"))
     hx, hy = box.half_extents[:2]
-    away = np.hypot(np.maximum(np.abs(gx) - hx, 0.0), np.maximum(np.abs(gy) - hy, 0.0))
+    away = footprint_distance(gx, gy, box)
     foot = (np.abs(gx) <= inner * hx) & (np.abs(gy) <= inner * hy)
     around = (away > ring[0] * size) & (away <= ring[1] * size)
+    if not foot.any() or not around.any():
+        raise NeoError(f"box {box.size_m} is too small to measure its footprint")
     bottom = box.center_m[2] - box.size_m[2] / 2
+    rng = np.random.default_rng(0)
 
     def world(mask: np.ndarray) -> np.ndarray:
         local = np.stack([gx[mask], gy[mask]], 1)
-        local = local[:: max(1, int(np.ceil(len(local) / MAX_POINTS)))]
+        if len(local) > MAX_POINTS:
+            local = local[np.sort(rng.choice(len(local), MAX_POINTS, replace=False))]
         xy = local @ box.rotation[:2, :2].T + box.center_m[:2]
         return np.concatenate([xy, np.full((len(xy), 1), bottom)], 1)
 
@@ -117,7 +126,7 @@ def footprint_contrast(
     bottom_centre = np.asarray(box.center_m) - [0.0, 0.0, box.size_m[2] / 2]
     chosen = facing_views(cameras, bottom_centre, views)
     if not chosen:
-        raise ValueError("no camera has the footprint in its image")
+        raise NeoError("no camera of the scan has the footprint in its image")
     device = field.aabb.device
     seen: dict[str, list[torch.Tensor]] = {"rgb_f": [], "rgb_r": [], "acc_f": [], "acc_r": []}
     for i in chosen:

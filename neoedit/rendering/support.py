@@ -3,8 +3,8 @@
 Each grid cell is rendered by one ray that comes down to the box's bottom plane from
 outside, at a given elevation, heading towards the box: the object does not stand in front
 of the support it shades, and a floor learnt from oblique photos is seen as they saw it.
-Used to find the shadow an object casts (:mod:`neoedit.edit.shadow`) and to measure
-whether a removal's footprint matches the support around it
+Used to find the shadow an object casts (:mod:`neoedit.edit.shadow`);
+:func:`footprint_distance` also places the support points of the removal-footprint metric
 (:mod:`neoedit.eval.footprint`).
 """
 
@@ -40,12 +40,15 @@ class SupportView:
     axis: np.ndarray
     """(n,) the cells' coordinates along the box's x and y axes [m]."""
 
+    @property
+    def cell_m(self) -> float:
+        """The cells' spacing [m] (coarser than asked for on large boxes)."""
+        return float(self.axis[1] - self.axis[0]) if len(self.axis) > 1 else 0.0
+
     def away_m(self, box: OrientedBox) -> np.ndarray:
         """(n, n) horizontal distance of each cell from the box's footprint (0 inside)."""
         gx, gy = np.meshgrid(self.axis, self.axis, indexing="ij")
-        dx = np.maximum(np.abs(gx) - box.half_extents[0], 0.0)
-        dy = np.maximum(np.abs(gy) - box.half_extents[1], 0.0)
-        return np.hypot(dx, dy)
+        return footprint_distance(gx, gy, box)
 
     def on_support(self, band_m: float) -> np.ndarray:
         """(n, n) cells whose ray ends opaque within ``band_m`` of the box's bottom."""
@@ -54,6 +57,14 @@ class SupportView:
     def luminance(self) -> np.ndarray:
         """(n, n) the cells' luminance (Rec. 601 weights)."""
         return self.rgb @ np.array([0.299, 0.587, 0.114])
+
+
+def footprint_distance(x: np.ndarray, y: np.ndarray, box: OrientedBox) -> np.ndarray:
+    """Horizontal distance [m] of points at (``x``, ``y``) in ``box``'s frame from its
+    footprint (0 inside it)."""
+    dx = np.maximum(np.abs(x) - box.half_extents[0], 0.0)
+    dy = np.maximum(np.abs(y) - box.half_extents[1], 0.0)
+    return np.hypot(dx, dy)
 
 
 @torch.no_grad()
@@ -76,7 +87,8 @@ def support_around(
     local = np.stack([gx.ravel(), gy.ravel()], 1)
     xy = local @ box.rotation[:2, :2].T + box.center_m[:2]
     out = xy - box.center_m[:2]
-    out /= np.maximum(np.linalg.norm(out, axis=1, keepdims=True), 1e-9)
+    out[np.linalg.norm(out, axis=1) < 1e-9] = (1.0, 0.0)  # the centre cell: any heading
+    out /= np.linalg.norm(out, axis=1, keepdims=True)
     el = np.radians(elevation_deg)
     heading = np.concatenate([-np.cos(el) * out, np.full((len(xy), 1), -np.sin(el))], 1)
     ends = np.concatenate([xy, np.full((len(xy), 1), bottom)], 1)
