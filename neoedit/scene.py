@@ -248,8 +248,9 @@ def _sync_patches(scene: Scene) -> None:
                 "region": [b.to_dict() for b in region],
                 "version": known[i]["version"] if i < len(known) else scene.meta.version_id,
             }
-            if transforms[i] is not None:
-                entry["transform"] = np.round(transforms[i], 12).tolist()
+            motion = transforms[i]
+            if motion is not None:
+                entry["transform"] = np.round(motion, 12).tolist()
             scene.meta.patches.append(entry)
 
 

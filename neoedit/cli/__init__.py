@@ -6,7 +6,7 @@ import contextlib
 import os
 import sys
 from collections.abc import Iterator, Sequence
-from typing import Annotated, Union
+from typing import Annotated, Protocol, Union
 
 import tyro
 from rich.console import Console
@@ -130,7 +130,11 @@ def _env(name: str, value: str | None) -> Iterator[None]:
             os.environ[name] = before
 
 
-def _run(command: object, threads: str | None) -> int:
+class _Command(Protocol):
+    def run(self) -> None: ...
+
+
+def _run(command: _Command, threads: str | None) -> int:
     """Run a parsed command; errors -> one line on stderr and the exit status."""
     err = Console(stderr=True)
     try:

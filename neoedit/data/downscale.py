@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from typing import overload
 
 import cv2
 import numpy as np
@@ -46,6 +47,10 @@ class DataConfig:
         return factor
 
 
+@overload
+def _resize(stack: np.ndarray, size: tuple[int, int], nearest: bool) -> np.ndarray: ...
+@overload
+def _resize(stack: None, size: tuple[int, int], nearest: bool) -> None: ...
 def _resize(stack: np.ndarray | None, size: tuple[int, int], nearest: bool) -> np.ndarray | None:
     if stack is None:
         return None

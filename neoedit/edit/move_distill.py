@@ -136,7 +136,7 @@ def _students(
         # still cross both regions: measured on pick_place_3, drawing them all through the
         # target left a haze above the moved brick and its query box 0.72 -> 0.46 IoU)
         pf = parent.field
-        init = pf.renderer_of(targets, plain=True) if isinstance(pf, PatchedField) else _base(pf)
+        init = pf.trained_part_of(targets) if isinstance(pf, PatchedField) else _base(pf)
         child.field = copy.deepcopy(removed)
         return [(child.patched().add_patch(list(targets), init), dcfg.patch_mlp_lr_factor)]
     if patch_mode:

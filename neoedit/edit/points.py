@@ -140,6 +140,6 @@ def box_from_masks(
     centre_xy = kept[:, :2].mean(0) + rot @ centre_local[:2]
     return OrientedBox(
         (float(centre_xy[0]), float(centre_xy[1]), float(centre_local[2])),
-        tuple(float(s) for s in (hi - lo)),
+        (float(hi[0] - lo[0]), float(hi[1] - lo[1]), float(hi[2] - lo[2])),
         yaw,
     )

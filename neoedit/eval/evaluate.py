@@ -68,12 +68,13 @@ def evaluate(
         edited = list(out_boxes) + list(in_boxes)
         regions["rest"] = [~masks_for_boxes(data.cameras, i, edited) for i in indices]
     per_region: dict[str, dict[str, list[float]]] = {r: {m: [] for m in METRICS} for r in regions}
-    colours = ObjectColours(data.instance_names) if data.instance_ids is not None else None
+    ids = data.instance_ids
+    colours = ObjectColours(data.instance_names) if ids is not None else None
     for k, i in enumerate(indices):
         gt = data.images[i].astype(np.float32) / 255.0
         pred = renders[k]["rgb"].clip(0.0, 1.0)
-        if colours is not None:
-            colours.add(pred, gt, data.instance_ids[i])
+        if colours is not None and ids is not None:
+            colours.add(pred, gt, ids[i])
         nxt = (k + 1) % len(indices)
         for region, masks in regions.items():
             mask = masks[k]

@@ -16,13 +16,14 @@ rigid motion, owning the target box.
 from __future__ import annotations
 
 import copy
+from typing import cast
 
 import numpy as np
 import torch
 from torch import nn
 
 from neoedit.fields.composed import ComposedField, TransformedField
-from neoedit.fields.radiance import RadianceField
+from neoedit.fields.radiance import Field, RadianceField
 from neoedit.fields.room import RoomField
 from neoedit.geometry import OrientedBox, points_in_box
 
@@ -43,12 +44,8 @@ class PatchedField(ComposedField):
     def patches(self) -> nn.ModuleList:
         return self.parts
 
-    def renderer_of(
-        self, region: list[OrientedBox], plain: bool = False
-    ) -> RadianceField | TransformedField:
-        """The part that renders the boxes ``region`` now: the newest part owning a corner or
-        the centre of one of them, else the base. ``plain``: never a carried part (a patch
-        to train starts from weights in world coordinates: the base, or a trained patch)."""
+    def _owners(self, region: list[OrientedBox]) -> list[int]:
+        """Parts owning a corner or the centre of one of the boxes ``region``."""
         if not region:
             raise ValueError("a region needs at least one box")
         probe = torch.cat(
@@ -57,9 +54,20 @@ class PatchedField(ComposedField):
                 for b in region
             ]
         ).to(self.aabb.device)
-        owners = [int(k) for k in self.owner(probe).tolist() if k >= 0]
-        if plain:
-            owners = [k for k in owners if not isinstance(self.parts[k], TransformedField)]
+        return [int(k) for k in self.owner(probe).tolist() if k >= 0]
+
+    def renderer_of(self, region: list[OrientedBox]) -> RadianceField | TransformedField:
+        """The part that renders the boxes ``region`` now: the newest part owning a corner or
+        the centre of one of them, else the base."""
+        owners = self._owners(region)
+        return self.parts[max(owners)] if owners else self.base  # type: ignore[return-value]
+
+    def trained_part_of(self, region: list[OrientedBox]) -> RadianceField:
+        """:meth:`renderer_of`, never a carried part: a patch to train starts from weights in
+        world coordinates (the base, or a trained patch)."""
+        owners = [
+            k for k in self._owners(region) if not isinstance(self.parts[k], TransformedField)
+        ]
         return self.parts[max(owners)] if owners else self.base  # type: ignore[return-value]
 
     def renderer_inside(self, box: OrientedBox) -> RadianceField | TransformedField:
@@ -77,12 +85,12 @@ class PatchedField(ComposedField):
         self, region: list[OrientedBox], init: RadianceField | None = None
     ) -> RadianceField:
         """Append a patch owning the boxes ``region``, initialised from ``init`` (by default
-        the trained field that renders them now, :meth:`renderer_of` ``plain``); returns it
+        the trained field that renders them now, :meth:`trained_part_of`); returns it
         (the part an edit trains)."""
         if not region:
             raise ValueError("a patch needs at least one box")
-        source = init if init is not None else self.renderer_of(region, plain=True)
-        new: RadianceField = copy.deepcopy(source)  # type: ignore[assignment]
+        source = init if init is not None else self.trained_part_of(region)
+        new: RadianceField = copy.deepcopy(source)
         _drop_room(new)
         self.regions.append(list(region))
         self.parts.append(new)
@@ -92,7 +100,7 @@ class PatchedField(ComposedField):
         self,
         region: list[OrientedBox],
         transform: np.ndarray,
-        source: RadianceField | TransformedField,
+        source: Field,
     ) -> TransformedField:
         """Append a frozen part owning the boxes ``region`` that answers with ``source``
         (what rendered the object at its old place, :meth:`renderer_of` its source box)
@@ -102,12 +110,13 @@ class PatchedField(ComposedField):
         if not region:
             raise ValueError("a patch needs at least one box")
         motion = np.asarray(transform, dtype=np.float64)
+        weights = source
         if isinstance(source, TransformedField):
             motion = motion @ source.matrix()
-            source = source.field
-        inner = copy.deepcopy(source).requires_grad_(False)
+            weights = source.field
+        inner = cast(nn.Module, copy.deepcopy(weights)).requires_grad_(False)
         _drop_room(inner)
-        part = TransformedField(inner, motion)
+        part = TransformedField(cast(Field, inner), motion)
         self.regions.append(list(region))
         self.parts.append(part)
         return part

@@ -36,7 +36,10 @@ NO_CACHE_ENV = "NEO_NO_TEXT_CACHE"
 
 
 class TextEncoder(Protocol):
-    dim: int
+    @property
+    def dim(self) -> int:
+        """Length of the embeddings."""
+        ...
 
     def encode(self, texts: list[str]) -> torch.Tensor:
         """Unit-length embeddings (N, dim), float32 on the CPU."""
