@@ -24,12 +24,12 @@ $(STAMP): pyproject.toml
 # Table I's rows for one small NEO-Sim scene with neo bench.
 demo: $(STAMP)
 	$(VENV)/bin/neo sim scene examples/demo_scene.yaml --out $(DEMO_OUT)/sim --overwrite
-	rm -rf $(DEMO_OUT)/scene $(DEMO_OUT)/render $(DEMO_OUT)/eval_images $(DEMO_OUT)/query $(DEMO_OUT)/no_mug $(DEMO_OUT)/mug_preview $(DEMO_OUT)/mug_moved $(DEMO_OUT)/moved_render $(DEMO_OUT)/plan $(DEMO_OUT)/plan_diff $(DEMO_OUT)/grasp $(DEMO_OUT)/eval.json $(DEMO_OUT)/query.json $(DEMO_OUT)/no_mug_eval.json $(DEMO_OUT)/mug_moved_query.json
+	rm -rf $(DEMO_OUT)/scene $(DEMO_OUT)/render $(DEMO_OUT)/eval_images $(DEMO_OUT)/query $(DEMO_OUT)/no_mug $(DEMO_OUT)/mug_preview $(DEMO_OUT)/mug_moved $(DEMO_OUT)/moved_render $(DEMO_OUT)/plan $(DEMO_OUT)/plan_diff $(DEMO_OUT)/grasp $(DEMO_OUT)/eval.json $(DEMO_OUT)/query.json $(DEMO_OUT)/no_mug_eval.json $(DEMO_OUT)/mug_moved_query.json $(DEMO_OUT)/no_mug.json
 	$(VENV)/bin/neo train $(DEMO_OUT)/sim/pre --out $(DEMO_OUT)/scene --max-steps 600 --eval-every 200
 	$(VENV)/bin/neo render $(DEMO_OUT)/scene --views spiral --n-frames 36 --video --out $(DEMO_OUT)/render
 	$(VENV)/bin/neo eval $(DEMO_OUT)/scene --data $(DEMO_OUT)/sim/pre --json $(DEMO_OUT)/eval.json --images $(DEMO_OUT)/eval_images
 	$(VENV)/bin/neo query $(DEMO_OUT)/scene "mug" --json $(DEMO_OUT)/query.json --out $(DEMO_OUT)/query --image-scale 2
-	$(VENV)/bin/neo remove $(DEMO_OUT)/scene "mug" --out $(DEMO_OUT)/no_mug
+	$(VENV)/bin/neo remove $(DEMO_OUT)/scene "mug" --out $(DEMO_OUT)/no_mug --json $(DEMO_OUT)/no_mug.json
 	$(VENV)/bin/neo eval $(DEMO_OUT)/no_mug --data $(DEMO_OUT)/sim/post --json $(DEMO_OUT)/no_mug_eval.json
 	$(VENV)/bin/neo move $(DEMO_OUT)/scene "mug" --translate -0.1 -0.1 0 --yaw 45 --out $(DEMO_OUT)/mug_preview --preview
 	$(VENV)/bin/neo move $(DEMO_OUT)/scene "mug" --translate -0.1 -0.1 0 --yaw 45 --out $(DEMO_OUT)/mug_moved
@@ -45,7 +45,7 @@ demo: $(STAMP)
 	@echo "spiral video:    $(DEMO_OUT)/render/video.gif"
 	@echo "held-out views (render | ground truth): $(DEMO_OUT)/eval_images/"
 	@echo "query 'mug' (box + relevancy): $(DEMO_OUT)/query/query.png, box: $(DEMO_OUT)/query.json"
-	@echo "mug removed (new version):     $(DEMO_OUT)/no_mug/report/before_after.png, vs post scan: $(DEMO_OUT)/no_mug_eval.json"
+	@echo "mug removed (new version):     $(DEMO_OUT)/no_mug/report/before_after.png, vs post scan: $(DEMO_OUT)/no_mug_eval.json, the edit as data: $(DEMO_OUT)/no_mug.json"
 	@echo "mug moved (preview / full):    $(DEMO_OUT)/mug_preview/report/before_after.png, $(DEMO_OUT)/mug_moved/report/before_after.png"
 	@echo "moved mug found by name:       $(DEMO_OUT)/mug_moved_query.json; spiral video: $(DEMO_OUT)/moved_render/video.gif"
 	@echo "a 3-step plan (scene store):   $(DEMO_OUT)/plan/plan.png, diff step_0 vs step_3: $(DEMO_OUT)/plan_diff/diff.png (current: step_2)"

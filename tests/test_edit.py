@@ -253,6 +253,13 @@ def test_remove_end_to_end(trained: Path, sim_root: Path, tmp_path: Path, capsys
     p = load_scene(preview)
     assert p.meta.cut_boxes and p.meta.parent == parent.meta.version_id
     assert p.meta.edits[-1]["type"] == "remove"
+    # seen from the scan's cameras, the mug's footprint stood out from the table around it;
+    # with the mug cut, the table under it shows
+    from neoedit.eval.footprint import removal_footprint
+
+    with_mug, cut = removal_footprint(parent, box), removal_footprint(p, box)
+    assert with_mug.views > 0 and cut.views == with_mug.views
+    assert cut.delta < 0.5 * with_mug.delta, (cut, with_mug)
     result = json.loads((tmp_path / "preview.json").read_text())  # --json: the same facts
     assert result["version_id"] == p.meta.version_id and result["parent"] == p.meta.parent
     assert result["out"] == str(preview) and result["edit"]["type"] == "remove"
