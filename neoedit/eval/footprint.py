@@ -31,7 +31,7 @@ from neoedit.rendering.support import footprint_distance
 from neoedit.scene import Scene
 
 MAX_POINTS = 1500
-"""Support points per region (footprint, ring), evenly thinned beyond this."""
+"""Support points per region (footprint, ring): a fixed random subset beyond this."""
 
 
 @dataclass
