@@ -4,12 +4,15 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import shutil
 import string
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 import torch
+from filelock import FileLock
 from hypothesis import settings
 
 from neoedit.fields.hashgrid import HashGridConfig
@@ -109,23 +112,45 @@ def tiny_clip_vocab() -> dict[str, int]:
     return {t: i for i, t in enumerate(tokens)}
 
 
+def built_once(factory: pytest.TempPathFactory, name: str, build: Callable[[Path], None]) -> Path:
+    """``build(path)`` once per test run, shared by every pytest-xdist worker: the first
+    worker to ask builds it under a file lock, the others wait and reuse the result (a
+    session fixture alone is built once per worker). Users of the path must not change it."""
+    if os.environ.get("PYTEST_XDIST_WORKER") is None:
+        out = factory.mktemp(name) / name
+        build(out)
+        return out
+    root = factory.getbasetemp().parent / f"shared-{name}"  # the run's folder, all workers
+    root.mkdir(exist_ok=True)
+    out, done = root / name, root / "built"
+    with FileLock(str(root / "lock")):
+        if not done.exists():
+            shutil.rmtree(out, ignore_errors=True)  # what a failed build left
+            build(out)
+            done.touch()
+    return out
+
+
 @pytest.fixture(scope="session")
 def sim_root(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A removal scene and a pick-and-place scene of the small profile."""
     from neoedit.sim.run import simulate_scene
 
-    root = tmp_path_factory.mktemp("neosim")
-    for name in ("removal_1", "pick_place_1"):
-        simulate_scene(tiny_scene(name), root / name)
-    return root
+    def build(root: Path) -> None:
+        for name in ("removal_1", "pick_place_1"):
+            simulate_scene(tiny_scene(name), root / name)
+
+    return built_once(tmp_path_factory, "neosim", build)
 
 
 @pytest.fixture(scope="session")
 def trained(sim_root: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The tiny removal_1 pre scan trained for 400 steps (radiance field only)."""
-    out = tmp_path_factory.mktemp("scene") / "pre"
-    tiny_train(sim_root / "removal_1" / "pre", out, steps=400)
-    return out
+    return built_once(
+        tmp_path_factory,
+        "pre",
+        lambda out: tiny_train(sim_root / "removal_1" / "pre", out, steps=400),
+    )
 
 
 @pytest.fixture(scope="session")
@@ -133,11 +158,11 @@ def move_scene(sim_root: Path, tmp_path_factory: pytest.TempPathFactory) -> Path
     """The tiny pick-and-place pre scan with a label-teacher language field."""
     from neoedit.language.training import LanguageTrainConfig
 
-    out = tmp_path_factory.mktemp("move") / "pre"
-    tiny_train(
-        sim_root / "pick_place_1" / "pre",
-        out,
-        steps=400,
-        language=LanguageTrainConfig(rays=16384, steps=150, batch=2048),
+    language = LanguageTrainConfig(rays=16384, steps=150, batch=2048)
+    return built_once(
+        tmp_path_factory,
+        "move_pre",
+        lambda out: tiny_train(
+            sim_root / "pick_place_1" / "pre", out, steps=400, language=language
+        ),
     )
-    return out

@@ -217,6 +217,8 @@ def test_cli_train_render_eval(sim_root: Path, tmp_path: Path, capsys):
         "16",
         "--device",
         "cpu",
+        # the language field trains too (the CLI's path), at a size the test can afford
+        *("--language.steps", "60", "--language.rays", "8192", "--language.batch", "1024"),
     ]
     assert main(args) == 0
     assert (
