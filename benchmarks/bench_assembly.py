@@ -26,9 +26,11 @@ from pathlib import Path
 
 import numpy as np
 
+from neoedit.bench.methods import move_edit
 from neoedit.cameras.rays import CameraTensors
 from neoedit.data import load_scene_data
-from neoedit.edit.relocate import Motion, MoveConfig, move
+from neoedit.edit.pipeline import apply_edit
+from neoedit.edit.relocate import Motion
 from neoedit.errors import NeoError
 from neoedit.eval.evaluate import evaluate
 from neoedit.geometry import OrientedBox
@@ -61,7 +63,6 @@ def render_view(scene: Scene, data, view: int) -> np.ndarray:
 
 def run_chain(method: str, pre: Scene, args: argparse.Namespace, actions: list) -> dict:
     """The four moves by ``method``, each from the previous version; per-step metrics."""
-    cfg = MoveConfig(method=method)
     store = SceneStore.create(args.out / f"{method}_store") if method == "neo" else None
     if store is not None and "step_0" not in store.names():
         save_scene(store.root / "step_0", pre)
@@ -79,7 +80,9 @@ def run_chain(method: str, pre: Scene, args: argparse.Namespace, actions: list) 
             break
         transform = np.asarray(action["transform_world"], dtype=np.float64)
         t0 = time.perf_counter()
-        child = move(scene, [Motion(found, transform)], cfg, action["object"])
+        child = apply_edit(
+            scene, move_edit(method, [Motion(found, transform)], 1.0, action["object"])
+        )
         seconds = time.perf_counter() - t0
         if store is not None:
             save_scene(store.root / f"step_{k}", child)

@@ -28,11 +28,11 @@ from pathlib import Path
 
 import numpy as np
 
-from neoedit.bench.methods import ABLATIONS
-from neoedit.bench.methods import move_config as config_for
+from neoedit.bench.methods import ABLATIONS, move_edit
 from neoedit.cameras.rays import CameraTensors
 from neoedit.data import load_scene_data
-from neoedit.edit.relocate import Motion, move
+from neoedit.edit.pipeline import apply_edit
+from neoedit.edit.relocate import Motion, Move
 from neoedit.errors import NeoError
 from neoedit.eval.evaluate import evaluate
 from neoedit.geometry import OrientedBox
@@ -113,12 +113,11 @@ def run_scene(name: str, args: argparse.Namespace, methods: list[str]) -> tuple[
             seconds = scene.meta.train_seconds
         else:
             t0 = time.perf_counter()
-            cfg = config_for(method)
+            edit = move_edit(method, [Motion(found, transform)], 1.0, action["object"])
             # NEO's patch student only (the preview and the baseline refuse the option)
-            cfg.reuse_removal_patch = (
-                args.reuse_removal_patch and cfg.method == "neo" and not cfg.preview
-            )
-            scene = move(pre, [Motion(found, transform)], cfg, action["object"])
+            if isinstance(edit, Move) and not edit.cfg.preview:
+                edit.cfg.reuse_removal_patch = args.reuse_removal_patch
+            scene = apply_edit(pre, edit)
             seconds = time.perf_counter() - t0
             save_scene(out, scene)
         metrics = evaluate(scene, post, "test", [source], [target], max_views=args.views)

@@ -333,6 +333,31 @@ def test_plan_errors_are_clear(steps, message, tmp_path: Path, capsys):
     assert message in " ".join(capsys.readouterr().err.split()) and not (tmp_path / "o").exists()
 
 
+def test_a_plan_runs_its_moves_by_the_method_asked_for():
+    """``neo plan --method seal3d``: each move step is the baseline's edit with the
+    command's settings; removals and previews stay NEO's."""
+    from neoedit.bench.seal3d import Seal3dConfig, SealMove
+    from neoedit.edit.plan import PlanConfig, action_edit
+    from neoedit.edit.relocate import Move
+    from neoedit.edit.remove import Remove
+
+    box = OrientedBox((0.0, 0.0, 0.05), (0.1, 0.1, 0.1), 0.0)
+    move_step, remove_step = parse_plan(
+        [{"type": "move", "box": box.to_dict(), "translate_m": [0.1, 0, 0]},
+         {"type": "remove", "box": box.to_dict()}]
+    )  # fmt: skip
+    seal = Seal3dConfig(margin_m=0.02)
+    edit = action_edit(move_step, [box], PlanConfig(), move_edit=seal.move_edit())
+    assert isinstance(edit, SealMove) and edit.cfg is seal
+    assert np.allclose(edit.motions[0].transform[:3, 3], [0.1, 0, 0])
+    assert isinstance(action_edit(move_step, [box], PlanConfig()), Move)
+    preview = action_edit(move_step, [box], PlanConfig(preview=True), move_edit=seal.move_edit())
+    assert isinstance(preview, Move) and preview.cfg.preview
+    assert isinstance(
+        action_edit(remove_step, [box], PlanConfig(), move_edit=seal.move_edit()), Remove
+    )
+
+
 def test_batch_move_of_two_objects_moves_both(move_scene: Path, sim_root: Path):
     objects = json.loads((sim_root / "pick_place_1" / "pre" / "objects.json").read_text())
     boxes = [OrientedBox.from_dict(o["box"]) for o in objects["objects"]]

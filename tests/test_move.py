@@ -527,11 +527,43 @@ def test_move_distils_both_regions_or_reuses_the_removal_patch(
     for k, v in load_scene(move_scene).field.state_dict().items():
         assert torch.equal(parent.field.state_dict()[k], v), k  # nor did the parent change
     if reuse:  # NEO's patch student only: refused up front elsewhere
-        for other in ({"preview": True}, {"method": "seal3d"}, {"student": "field"}):
+        for other in ({"preview": True}, {"student": "field"}):
             with pytest.raises(NeoError, match="applies to NEO's patch student only"):
                 move(parent, [motion], _fast_move_config(reuse_removal_patch=True, **other))
     assert _mean_density(parent, source) > 20 * _mean_density(child, source)
     assert _mean_density(child, target) > 20 * _mean_density(parent, target)
+
+
+def test_the_seal3d_baseline_is_its_own_edit(move_scene: Path, sim_root: Path, tmp_path: Path):
+    """`neo move --method seal3d`: one teacher (source empty, target moved), the whole field
+    as the student (no patch, no shadow slab, nothing inpainted), its own settings; with
+    --preview it is refused before any work."""
+    action = _action(sim_root)
+    source = OrientedBox.from_dict(action["source_box"])
+    (tmp_path / "box.json").write_text(json.dumps(action["source_box"]))
+    (tmp_path / "t.json").write_text(json.dumps(action))
+    base = ["move", str(move_scene), "--box", str(tmp_path / "box.json")]
+    base += ["--transform", str(tmp_path / "t.json"), "--method", "seal3d"]
+    refused = tmp_path / "refused"
+    assert main([*base, "--preview", "--out", str(refused)]) == 2 and not refused.exists()
+    schedule = ["--seal3d.schedule.field-steps", "30", "--seal3d.schedule.render-steps", "60"]
+    out = tmp_path / "seal"
+    assert main([*base, *schedule, "--seal3d.language.steps", "30", "--out", str(out)]) == 0
+    child, parent = load_scene(out), load_scene(move_scene)
+    assert isinstance(child.field, RadianceField) and not isinstance(child.field, PatchedField)
+    record = child.meta.edits[-1]
+    assert record["method"] == "seal3d" and record["shadow_boxes"] == []
+    assert record["config"]["schedule"]["render_steps"] == 60  # the baseline's own settings
+    assert {"teacher_s", "distill_s", "loss_render"} <= record["timings"].keys()
+    # the object left its place (the tiny parent holds as much density in the target's
+    # empty space as the object has, so the target is not a test of this baseline here)
+    assert _mean_density(parent, source) > 20 * _mean_density(child, source)
+    changed = [
+        k
+        for k, v in parent.field.state_dict().items()
+        if not torch.equal(v, child.field.state_dict()[k])
+    ]
+    assert "encoding.table" in changed, changed  # the whole field is the student
 
 
 # -- the Python facade (import neoedit as neo): the documented example, run --------------

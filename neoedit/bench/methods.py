@@ -24,10 +24,11 @@ from typing import Any
 
 import numpy as np
 
+from neoedit.bench.seal3d import Seal3dConfig, SealMove, SealRemove
 from neoedit.cameras.rays import CameraTensors
 from neoedit.data import SceneData, load_scene_data
 from neoedit.edit.pipeline import Edit, apply_edit
-from neoedit.edit.relocate import Motion, Move, MoveConfig, SealRemove, check_motions
+from neoedit.edit.relocate import Motion, Move, MoveConfig, check_motions
 from neoedit.edit.remove import Remove, RemoveConfig
 from neoedit.errors import NeoError
 from neoedit.eval.evaluate import evaluate
@@ -106,19 +107,33 @@ def remove_config(method: str, scale: float = 1.0) -> RemoveConfig:
 
 
 def move_config(method: str, scale: float = 1.0) -> MoveConfig:
-    """The move configuration of a pick-and-place method (an ablation changes one part);
-    ``scale`` multiplies every training step count."""
+    """NEO's move configuration for 'neo', 'preview' or an ablation (which changes one
+    part); ``scale`` multiplies every training step count."""
     base = MoveConfig()
     base.remove.refine.steps = _steps(base.remove.refine.steps, scale)
-    for d in (base.distill, base.seal3d):
-        d.field_steps, d.render_steps = _steps(d.field_steps, scale), _steps(d.render_steps, scale)
+    d = base.distill
+    d.field_steps, d.render_steps = _steps(d.field_steps, scale), _steps(d.render_steps, scale)
     if method == "preview":
         return dataclasses.replace(base, preview=True)
-    if method == "seal3d":
-        return dataclasses.replace(base, method="seal3d")
     if method in ABLATIONS:
         return ABLATIONS[method](base)
     return base
+
+
+def seal3d_config(scale: float = 1.0) -> Seal3dConfig:
+    """The Seal-3D-style baseline's configuration, its steps multiplied by ``scale``."""
+    cfg = Seal3dConfig()
+    d = cfg.schedule
+    d.field_steps, d.render_steps = _steps(d.field_steps, scale), _steps(d.render_steps, scale)
+    return cfg
+
+
+def move_edit(method: str, motions: list[Motion], scale: float, prompt: str) -> Edit:
+    """The typed edit of one pick-and-place method: the Seal-3D-style baseline's, or NEO's
+    (the preview and the ablations are configurations of it)."""
+    if method == "seal3d":
+        return SealMove(motions, seal3d_config(scale), prompt)
+    return Move(motions, move_config(method, scale), prompt)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -175,7 +190,7 @@ def removal_edit(
     if method in ("resample", "suppress", "neo"):
         return Remove([box], remove_config(method, inp.edit_scale), name)
     if method == "seal3d":
-        return SealRemove([box], move_config("seal3d", inp.edit_scale), name)
+        return SealRemove([box], seal3d_config(inp.edit_scale), name)
     from neoedit.bench.nerfiller import NerfillerConfig, NerfillerRemove
 
     # NeRFiller retrains the whole field: the pre scan's own budget, edit_scale or not
@@ -202,7 +217,7 @@ def run_move(method: str, inp: SceneInputs) -> tuple[dict[str, Any], np.ndarray]
 
     def edit(pre: Scene, box: OrientedBox, action: dict) -> Callable[[], Scene]:
         motion = checked_motion(pre, box, action["transform_world"])
-        relocation = Move([motion], move_config(method, inp.edit_scale), action["object"])
+        relocation = move_edit(method, [motion], inp.edit_scale, action["object"])
         return lambda: apply_edit(pre, relocation)
 
     return _run_action(method, inp, edit, moved=True)
@@ -265,8 +280,7 @@ def run_assembly(method: str, inp: SceneInputs) -> tuple[dict[str, Any], np.ndar
                 break
             row["query_iou"] = round(box_iou_3d(box, source), 3)
             t0 = time.perf_counter()
-            edit = Move([motion], move_config(method, inp.edit_scale), action["object"])
-            chain = apply_edit(chain, edit)
+            chain = apply_edit(chain, move_edit(method, [motion], inp.edit_scale, action["object"]))
             row["seconds"] = round(time.perf_counter() - t0, 1)
             current = chain
         row.update(evaluate(current, post, "test", [source], [target], max_views=inp.eval_views))

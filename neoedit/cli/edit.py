@@ -13,6 +13,7 @@ import tyro
 from rich.console import Console
 from rich.markup import escape
 
+from neoedit.bench.seal3d import Seal3dConfig
 from neoedit.edit.history import edit_lock
 from neoedit.edit.relocate import MoveConfig
 from neoedit.edit.remove import RemoveConfig
@@ -198,11 +199,13 @@ class MoveCommand:
     "transform_world" key (NEO-Sim's scene.json action format)."""
     method: Literal["neo", "seal3d"] = "neo"
     """'neo' (the paper: region-composed teachers, inpainted source) or 'seal3d' (the
-    single-teacher baseline)."""
+    single-teacher baseline, set with --seal3d.*)."""
     preview: bool = False
     """Instant preview: record the move and render it by composition, no training."""
     edit: MoveConfig = dataclasses.field(default_factory=MoveConfig)
-    """Everything else of the edit (--edit.distill.render-steps, --edit.remove.inpainter, ...)."""
+    """Everything else of NEO's edit (--edit.distill.render-steps, --edit.remove.inpainter, ...)."""
+    seal3d: Seal3dConfig = dataclasses.field(default_factory=Seal3dConfig)
+    """The baseline's settings, with --method seal3d (--seal3d.schedule.render-steps ...)."""
     query: QueryConfig = dataclasses.field(default_factory=QueryConfig)
     json: Path | None = None
     """Also write the result here as JSON (the new version, its parent, the source and
@@ -214,7 +217,14 @@ class MoveCommand:
 
     def run(self) -> None:
         self.query.check()  # before any loading or training
-        from neoedit.edit.pipeline import apply_edit
+        if self.method == "seal3d":
+            if self.preview:
+                raise NeoError(
+                    "--preview and --method seal3d do not combine: a preview trains nothing"
+                )
+            self.seal3d.check()
+        from neoedit.bench.seal3d import SealMove
+        from neoedit.edit.pipeline import Edit, apply_edit
         from neoedit.edit.relocate import Motion, Move
         from neoedit.edit.remove import write_report
         from neoedit.scene import save_scene
@@ -232,8 +242,14 @@ class MoveCommand:
             )
             boxes = find_boxes(scene, self.prompt, self.box, self.query, self.masks)
             motions = [Motion(b, motion_for(b, transform)) for b in boxes]
-            cfg = dataclasses.replace(self.edit, method=self.method, preview=self.preview)
-            child = apply_edit(scene, Move(motions, cfg, self.prompt))
+            edit: Edit = (
+                SealMove(motions, self.seal3d, self.prompt)
+                if self.method == "seal3d"
+                else Move(
+                    motions, dataclasses.replace(self.edit, preview=self.preview), self.prompt
+                )
+            )
+            child = apply_edit(scene, edit)
             save_scene(
                 self.out, child, extras=lambda d: write_report(d / "report", scene, child, [])
             )

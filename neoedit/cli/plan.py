@@ -13,6 +13,7 @@ import tyro
 from rich.console import Console
 from rich.markup import escape
 
+from neoedit.bench.seal3d import Seal3dConfig
 from neoedit.edit.plan import PlanConfig
 from neoedit.errors import NeoError
 from neoedit.language.localize import QueryConfig
@@ -37,7 +38,9 @@ class PlanCommand:
     preview: bool = False
     """Instant previews only: moves composed at render time, removals cut, no training."""
     method: Literal["neo", "seal3d"] = "neo"
-    """How moves are distilled."""
+    """How moves are distilled: NEO, or the Seal-3D-style baseline (--seal3d.*)."""
+    seal3d: Seal3dConfig = dataclasses.field(default_factory=Seal3dConfig)
+    """The baseline's settings, with --method seal3d (--seal3d.schedule.render-steps ...)."""
     edit: PlanConfig = dataclasses.field(default_factory=PlanConfig)
     """Move and removal settings (--edit.move.distill.render-steps, --edit.remove.margin-m ...)."""
     query: QueryConfig = dataclasses.field(default_factory=QueryConfig)
@@ -53,6 +56,8 @@ class PlanCommand:
 
     def run(self) -> None:
         self.query.check()  # before any loading or training
+        if self.method == "seal3d":
+            self.seal3d.check()
         from neoedit.cli.edit import check_json_output, edit_result, find_boxes
         from neoedit.edit.plan import apply_action, check_plan, load_plan, plan_boxes
         from neoedit.edit.remove import write_report
@@ -75,11 +80,8 @@ class PlanCommand:
         if scene.meta.language is None and any(a.prompt for a in actions):
             raise NeoError("this scene has no language field: give the plan's steps a box")
         check_plan(scene, actions)
-        cfg = dataclasses.replace(
-            self.edit,
-            preview=self.preview,
-            move=dataclasses.replace(self.edit.move, method=self.method),
-        )
+        cfg = dataclasses.replace(self.edit, preview=self.preview)
+        move_edit = self.seal3d.move_edit() if self.method == "seal3d" else None
         store = SceneStore.create(self.out)
         views = pick_views(scene, self.views)
         columns = [render_versions([scene], views)]
@@ -90,7 +92,7 @@ class PlanCommand:
             for k, action in enumerate(actions, 1):
                 try:
                     boxes = plan_boxes(action) or find_boxes(scene, action.prompt, None, self.query)
-                    child = apply_action(scene, action, boxes, cfg)
+                    child = apply_action(scene, action, boxes, cfg, move_edit=move_edit)
                 except NeoError as e:  # NoMatch too
                     self._strip(columns, names)
                     raise NeoError(

@@ -1,6 +1,6 @@
 """What a move is: the objects' boxes and rigid motions (:class:`Motion`, checked by
-:func:`check_motions`) and how it is done (:class:`MoveConfig`: NEO's distillation, the
-Seal-3D-style baseline's schedule, the ablations)."""
+:func:`check_motions`) and how NEO does it (:class:`MoveConfig`: the removal at the source,
+the distillation, the ablations' switches)."""
 
 from __future__ import annotations
 
@@ -17,31 +17,17 @@ from neoedit.errors import NeoError
 from neoedit.geometry import OrientedBox, is_rigid
 from neoedit.scene import Scene
 
-METHODS = ("neo", "seal3d")
 STUDENTS = ("patch", "field")
 MAX_TILT_DEG = 5.0
 """Largest tilt a motion may have (a placement that settled slightly askew, as NEO-Sim's
 realised transforms do); the field turns the object exactly, its boxes keep only the yaw."""
 
 
-def _seal3d_default() -> DistillConfig:
-    # Seal-3D's schedule, scaled to our budget: a local stage with frozen MLPs at a high
-    # table rate, then global fine-tuning on random rays of the training views (no focus).
-    return DistillConfig(
-        field_steps=100,
-        render_steps=200,
-        focus=0.0,
-        box_points=8192,
-        lr=1e-2,
-        mlp_lr_factor=0.1,
-        local_rows=False,
-    )
-
-
 @dataclass
 class MoveConfig:
-    method: str = "neo"
-    """'neo' (region-composed teachers, inpainted source) or 'seal3d' (the baseline)."""
+    """How NEO moves objects (the Seal-3D-style baseline has its own configuration,
+    :class:`neoedit.bench.seal3d.Seal3dConfig`)."""
+
     preview: bool = False
     """Instant preview: record the move, render it by composition, train nothing."""
     remove: RemoveConfig = field(
@@ -50,9 +36,6 @@ class MoveConfig:
     """How the source box is emptied and inpainted (neo): box margin, inpainter, refinement."""
     distill: DistillConfig = field(default_factory=DistillConfig)
     """NEO's two-stage distillation."""
-    seal3d: DistillConfig = field(default_factory=_seal3d_default)
-    """The Seal-3D-style baseline's schedule (stage 1 = its local point stage, MLPs frozen;
-    stage 2 = its global stage)."""
     language: LanguageUpdateConfig = field(default_factory=LanguageUpdateConfig)
     target_floor_m: float = 0.004
     """The target region starts this far above the source box's bottom, so the support
@@ -90,8 +73,7 @@ class MoveConfig:
     ``distill.patch_mlp_lr_factor``: a new object stands there); the rest
     of the scene stays bit-identical, so a chain of edits cannot wash it out. 'field': the
     whole field is the student (updates limited to the table rows that samples in the boxes
-    read; earlier patches are baked in). The Seal-3D-style baseline always distils the whole
-    field, as Seal-3D does."""
+    read; earlier patches are baked in), as the Seal-3D-style baseline always does."""
 
 
 @dataclass

@@ -1,8 +1,11 @@
 """The distillation of a move (paper Sec. III-C/D): the region-composed teacher (the current
 field outside, the removed and inpainted field in the source boxes, the moved field in the
 target boxes), the student (a patch for the hole beside the carried targets, two patches,
-or the whole field) and the two-stage
-distillation between them; the Seal-3D-style baseline's single teacher and schedule."""
+or the whole field) and the two-stage distillation between them.
+
+The parts any distillation of a move shares (the moved parts of a teacher, the teacher's
+and student's grids, the ray pool, the final grid) are functions here; the Seal-3D-style
+baseline (:mod:`neoedit.bench.seal3d`) builds its own teacher and schedule from them."""
 
 from __future__ import annotations
 
@@ -17,13 +20,22 @@ from neoedit.edit.inpaint import Inpainter
 from neoedit.edit.motion import MoveConfig
 from neoedit.edit.pipeline import Timings
 from neoedit.edit.remove import inpaint_removal
-from neoedit.edit.views import concat_cameras, virtual_cameras
-from neoedit.fields.composed import ComposedField, EmptyField, MaskedField, TransformedField
+from neoedit.edit.views import VirtualViewConfig, concat_cameras, virtual_cameras
+from neoedit.fields.composed import ComposedField, MaskedField, TransformedField
 from neoedit.fields.patched import PatchedField, edit_region
 from neoedit.fields.radiance import Field, RadianceField
 from neoedit.geometry import OrientedBox
 from neoedit.rendering.occupancy import OccupancyGrid, cells_in_boxes, refresh_grid
 from neoedit.scene import Scene
+
+
+def moved_parts(
+    parent: Scene, targets: list[OrientedBox], transforms: list[np.ndarray]
+) -> list[tuple[list[OrientedBox], Field]]:
+    """Each target box with the parent's field (as it renders: its grid applied) seen
+    through the motion, the target parts of a composed teacher."""
+    moving = MaskedField(parent.field, parent.grid.is_occupied)
+    return [([g], TransformedField(moving, tf)) for g, tf in zip(targets, transforms, strict=True)]
 
 
 def _teacher(
@@ -34,15 +46,10 @@ def _teacher(
     cfg: MoveConfig,
     inpainter: Inpainter | None,
     shadows: list[OrientedBox],
-) -> tuple[Field, PatchedField | None, dict[str, float]]:
+) -> tuple[Field, PatchedField, dict[str, float]]:
     """The composed teacher S' (every part as it renders, its grid applied), the parent's
-    field with the removal's patch (None for the baseline; its region: the sources and the
-    ``shadows`` slabs) and the timings of building it."""
-    moving = MaskedField(parent.field, parent.grid.is_occupied)
-    moved = [([g], TransformedField(moving, tf)) for g, tf in zip(targets, transforms, strict=True)]
-    if cfg.method == "seal3d":
-        empty: Field = EmptyField(parent.field.aabb)
-        return ComposedField(moving, [(sources, empty), *moved]), None, {}
+    field with the removal's patch (its region: the sources and the ``shadows`` slabs) and
+    the timings of building it."""
     # the parent's field (earlier patches included) plus the removal's patch
     removed = Scene(
         copy.deepcopy(parent.field),
@@ -58,18 +65,61 @@ def _teacher(
     refresh_grid(removed.grid, removed.field.density, cells_in_boxes(removed.grid, region))
     base = MaskedField(removed.field, removed.grid.is_occupied)
     timings = {f"inpaint_{k}": v for k, v in timings.items()}
-    return ComposedField(base, moved), removed.patched(), timings
+    return ComposedField(base, moved_parts(parent, targets, transforms)), removed.patched(), timings
 
 
-def _base(field_: Field) -> RadianceField:
+def base_field(field_: Field) -> RadianceField:
+    """The radiance field under a patched field's patches (the field itself otherwise)."""
     return field_.base if isinstance(field_, PatchedField) else field_  # type: ignore[return-value]
 
 
+def with_patch_regions(parent: Scene, regions: list[OrientedBox]) -> list[OrientedBox]:
+    """``regions`` and the regions of the parent's earlier patches: a whole-field student
+    bakes those patches in, so it is taught there too."""
+    if not isinstance(parent.field, PatchedField):
+        return regions
+    return [*regions, *(b for region in parent.field.regions for b in region)]
+
+
+def distillation_grids(
+    parent: Scene, teacher: Field, regions: list[OrientedBox]
+) -> tuple[OccupancyGrid, OccupancyGrid]:
+    """The teacher's grid (the parent's, refreshed from the teacher in ``regions``) and the
+    student's (sampled wherever the teacher or the parent's weights have content)."""
+    teacher_grid = copy.deepcopy(parent.grid)
+    refresh_grid(teacher_grid, teacher.density, cells_in_boxes(teacher_grid, regions))
+    student_grid = copy.deepcopy(teacher_grid)
+    student_grid.density.copy_(torch.maximum(teacher_grid.density, parent.grid.density))
+    student_grid.refresh_mask()
+    return teacher_grid, student_grid
+
+
+def finish_grid(parent: Scene, child: Scene, regions: list[OrientedBox]) -> None:
+    """``child.grid``: the parent's, refreshed from the child's field in ``regions``."""
+    child.grid = copy.deepcopy(parent.grid)
+    refresh_grid(child.grid, child.field.density, cells_in_boxes(child.grid, regions))
+
+
+def scan_ray_pool(
+    parent: Scene,
+    regions: list[OrientedBox],
+    seed: int,
+    virtual_around: list[OrientedBox] | None = None,
+    views: VirtualViewConfig | None = None,
+) -> RayPool:
+    """Rays of the scan's training views, and of virtual views around ``virtual_around``."""
+    cameras, _, split = parent.scan_cameras()
+    scan = cameras.subset(split.get("train", np.arange(len(cameras))))
+    virtual = None
+    if virtual_around:
+        views = views or VirtualViewConfig()
+        virtual = concat_cameras([virtual_cameras(b, scan, views) for b in virtual_around])
+    return RayPool(scan, virtual, regions, parent.field.aabb.device, seed)
+
+
 def _distil_config(cfg: MoveConfig, patch_mode: bool) -> DistillConfig:
-    """The distillation schedule of ``cfg``'s method and ablation."""
-    dcfg = cfg.seal3d if cfg.method == "seal3d" else cfg.distill
-    if cfg.method == "seal3d":
-        dcfg = dataclasses.replace(dcfg, freeze_mlp=True)
+    """NEO's distillation schedule under ``cfg``'s ablation."""
+    dcfg = cfg.distill
     if cfg.field_only:
         dcfg = dataclasses.replace(
             dcfg, field_steps=dcfg.field_steps + dcfg.render_steps, render_steps=0
@@ -80,29 +130,6 @@ def _distil_config(cfg: MoveConfig, patch_mode: bool) -> DistillConfig:
     if patch_mode:
         return dataclasses.replace(dcfg, regions_only=True, local_rows=False)
     return dataclasses.replace(dcfg, regions_only=False)
-
-
-def _seal3d_distil(
-    student: RadianceField,
-    student_grid: OccupancyGrid,
-    teacher: Field,
-    teacher_grid: OccupancyGrid,
-    pool: RayPool,
-    regions: list[OrientedBox],
-    parent: Scene,
-    dcfg: DistillConfig,
-) -> dict[str, float]:
-    """Seal-3D's two stages: a local one (MLPs frozen, points in and around the boxes),
-    then a global one (all weights, rendered RGB + depth)."""
-    local = dataclasses.replace(dcfg, render_steps=0)
-    glob = dataclasses.replace(dcfg, field_steps=0, freeze_mlp=False)
-    grown = [b.grown(0.02) for b in regions]
-    render, bg = parent.meta.render, parent.background
-    losses = distill(student, student_grid, teacher, teacher_grid, pool, grown, render, bg, local)
-    losses.update(
-        distill(student, student_grid, teacher, teacher_grid, pool, regions, render, bg, glob)
-    )
-    return losses
 
 
 def _students(
@@ -136,7 +163,7 @@ def _students(
         # still cross both regions: measured on pick_place_3, drawing them all through the
         # target left a haze above the moved brick and its query box 0.72 -> 0.46 IoU)
         pf = parent.field
-        init = pf.trained_part_of(targets) if isinstance(pf, PatchedField) else _base(pf)
+        init = pf.trained_part_of(targets) if isinstance(pf, PatchedField) else base_field(pf)
         child.field = copy.deepcopy(removed)
         return [(child.patched().add_patch(list(targets), init), dcfg.patch_mlp_lr_factor)]
     if patch_mode:
@@ -148,7 +175,7 @@ def _students(
             (patched.add_patch(source_regions), dcfg.mlp_lr_factor),
             (patched.add_patch(list(targets)), dcfg.patch_mlp_lr_factor),
         ]
-    return copy.deepcopy(_base(parent.field))
+    return copy.deepcopy(base_field(parent.field))
 
 
 def distil_move(
@@ -162,10 +189,11 @@ def distil_move(
     timings: Timings,
     shadows: list[OrientedBox] | None = None,
 ) -> None:
-    """Build the teacher, distil it into ``child.field`` (a patch for the hole and a
+    """Build NEO's teacher, distil it into ``child.field`` (a patch for the hole and a
     carried part per target; with ``carry`` off two patches, with ``student='field'`` a
-    plain radiance field initialised from the parent's weights) and refresh ``child.grid``. ``shadows``: slabs on the support around the
-    sources (their shadows), emptied and inpainted with them."""
+    plain radiance field initialised from the parent's weights) and refresh ``child.grid``.
+    ``shadows``: slabs on the support around the sources (their shadows), emptied and
+    inpainted with them."""
     shadows = shadows or []
     with timings.stage("teacher"):
         teacher, removed, built = _teacher(
@@ -177,22 +205,17 @@ def distil_move(
         below = cfg.remove.refine.below_m
         emptied = [*sources, *shadows]
         regions = [*(edit_region(s, below) for s in emptied), *targets]
-        patch_mode = cfg.student == "patch" and cfg.method == "neo"
-        if isinstance(parent.field, PatchedField) and not patch_mode:
-            # a whole-field student bakes the earlier patches in
-            regions += [b for region in parent.field.regions for b in region]
-        teacher_grid = copy.deepcopy(parent.grid)
-        refresh_grid(teacher_grid, teacher.density, cells_in_boxes(teacher_grid, regions))
-        # the student is sampled wherever the teacher or its initial weights have content
-        student_grid = copy.deepcopy(teacher_grid)
-        student_grid.density.copy_(torch.maximum(teacher_grid.density, parent.grid.density))
-        student_grid.refresh_mask()
-        pool = _ray_pool(parent, sources, targets, regions, cfg)
+        patch_mode = cfg.student == "patch"
+        if not patch_mode:
+            regions = with_patch_regions(parent, regions)
+        teacher_grid, student_grid = distillation_grids(parent, teacher, regions)
+        virtual = [*sources, *targets] if cfg.virtual_views else None
+        pool = scan_ray_pool(parent, regions, cfg.distill.seed, virtual, cfg.remove.views)
         dcfg = _distil_config(cfg, patch_mode)
         keep = removed if patch_mode and cfg.reuse_removal_patch else None
         source_regions = regions[: len(emptied)]
-        # the object carried under the motion: NEO's patch student (the baseline and a
-        # whole-field student distil everything, so --edit.carry does not apply to them)
+        # the object carried under the motion: NEO's patch student (a whole-field student
+        # distils everything, so --edit.carry does not apply to it)
         carry = cfg.carry and patch_mode
         carried = list(zip(sources, transforms, strict=True)) if carry else None
         students = _students(
@@ -200,34 +223,14 @@ def distil_move(
         )
     losses: dict[str, float] = {}
     with timings.stage("distill"):
-        args = (student_grid, teacher, teacher_grid, pool)
-        if cfg.method == "seal3d" and isinstance(students, RadianceField):  # a whole field
-            losses = _seal3d_distil(students, *args, regions, parent, dcfg)
-        elif students:  # nothing to distil: a carried object beside the removal's own patch
+        if students:  # nothing to distil: a carried object beside the removal's own patch
             losses = distill(
-                students, *args, regions, parent.meta.render, parent.background, dcfg,
+                students, student_grid, teacher, teacher_grid, pool, regions,
+                parent.meta.render, parent.background, dcfg,
                 view=child.field if patch_mode else None,
             )  # fmt: skip
     with timings.stage("grid"):
         if isinstance(students, RadianceField):
             child.field = students
-        child.grid = copy.deepcopy(parent.grid)
-        refresh_grid(child.grid, child.field.density, cells_in_boxes(child.grid, regions))
+        finish_grid(parent, child, regions)
     timings.merge({k: round(v, 5) for k, v in losses.items()}, prefix="loss_")
-
-
-def _ray_pool(
-    parent: Scene,
-    sources: list[OrientedBox],
-    targets: list[OrientedBox],
-    regions: list[OrientedBox],
-    cfg: MoveConfig,
-) -> RayPool:
-    """Rays of the scan's training views, and (NEO) of virtual views around every box."""
-    cameras, _, split = parent.scan_cameras()
-    scan = cameras.subset(split.get("train", np.arange(len(cameras))))
-    virtual = None
-    if cfg.virtual_views and cfg.method == "neo":
-        views = cfg.remove.views
-        virtual = concat_cameras([virtual_cameras(b, scan, views) for b in [*sources, *targets]])
-    return RayPool(scan, virtual, regions, parent.field.aabb.device, cfg.distill.seed)

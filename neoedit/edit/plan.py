@@ -20,6 +20,7 @@ mapping, or a list) instead of a prompt.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -181,21 +182,31 @@ class PlanConfig:
     remove: RemoveConfig = field(default_factory=RemoveConfig)
 
 
+MoveEdit = Callable[[list[Motion], str | None], Edit]
+"""Makes the edit of a move step from its motions and prompt (another method than NEO's)."""
+
+
 def apply_action(
     scene: Scene,
     action: Action,
     boxes: list[OrientedBox],
     cfg: PlanConfig,
     inpainter: Inpainter | None = None,
+    move_edit: MoveEdit | None = None,
 ) -> Scene:
     """One step of a plan on ``scene`` (left unchanged): the new version."""
-    return apply_edit(scene, action_edit(action, boxes, cfg, inpainter))
+    return apply_edit(scene, action_edit(action, boxes, cfg, inpainter, move_edit))
 
 
 def action_edit(
-    action: Action, boxes: list[OrientedBox], cfg: PlanConfig, inpainter: Inpainter | None = None
+    action: Action,
+    boxes: list[OrientedBox],
+    cfg: PlanConfig,
+    inpainter: Inpainter | None = None,
+    move_edit: MoveEdit | None = None,
 ) -> Edit:
-    """The typed edit of one plan step on the objects in ``boxes``."""
+    """The typed edit of one plan step on the objects in ``boxes``: NEO's, or for a move
+    (not a preview) ``move_edit``'s when given."""
     if action.type == "remove":
         rcfg = cfg.remove if not cfg.preview else dataclasses.replace(cfg.remove, inpaint=False)
         return Remove(boxes, rcfg, action.prompt, inpainter)
@@ -207,6 +218,8 @@ def action_edit(
         )
     specs = specs * len(boxes) if len(specs) == 1 else specs
     motions = [Motion(b, s.matrix(b)) for b, s in zip(boxes, specs, strict=True)]
+    if move_edit is not None and not cfg.preview:
+        return move_edit(motions, action.prompt)
     mcfg = dataclasses.replace(cfg.move, preview=cfg.preview)
     return Move(motions, mcfg, action.prompt, inpainter)
 

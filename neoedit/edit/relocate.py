@@ -12,30 +12,25 @@
   patch initialised from the current weights, on rays of the scan cameras and of virtual
   views around source and target (``carry`` off: the target is distilled too, the
   paper's design).
-* ``seal3d`` (the baseline, Seal-3D, Wang et al. ICCV 2023): one teacher — the current
-  field with the target box mapped back by the inverse motion and the source box empty,
-  no inpainting —, a local point-level stage (density + colour on points in and around the
-  boxes, MLPs frozen: only the hash table learns) and a global stage on the teacher's
-  rendered RGB + depth over random rays of the scan's views.
+
+The Seal-3D-style baseline is its own edit, :class:`neoedit.bench.seal3d.SealMove`.
 
 The output has the structure of its input (one radiance field + language field), so it is
 a valid input to every verb, another move included.
 """
 
-import copy
 import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from neoedit.edit.checks import check_edit_boxes
 from neoedit.edit.inpaint import Inpainter
 from neoedit.edit.language_update import LanguageEdit
-from neoedit.edit.motion import METHODS, STUDENTS, Motion, MoveConfig, check_motions
+from neoedit.edit.motion import STUDENTS, Motion, MoveConfig, check_motions
 from neoedit.edit.move_distill import distil_move
 from neoedit.edit.pipeline import Prepared, Timings, apply_edit
 from neoedit.edit.remove import working_boxes
-from neoedit.edit.settle import settle
+from neoedit.edit.settle import settled_start
 from neoedit.edit.shadow import scene_shadows
 from neoedit.errors import NeoError
 from neoedit.geometry import OrientedBox
@@ -43,14 +38,13 @@ from neoedit.geometry.box import box_iou_3d
 from neoedit.rendering.occupancy import cells_in_boxes, refresh_grid
 from neoedit.scene import Scene
 
-__all__ = ["Motion", "Move", "MoveConfig", "SealRemove", "check_motions", "distil_removal", "move"]
+__all__ = ["Motion", "Move", "MoveConfig", "check_motions", "move"]
 
 
 @dataclass
 class Move:
     """Move every ``motions[i].box`` by its transform (paper Sec. III-C/D): NEO's composed
-    teacher distilled into patches, the Seal-3D-style baseline, or the instant preview
-    (``cfg.method`` / ``cfg.preview``). Run it with
+    teacher distilled into patches, or the instant preview (``cfg.preview``). Run it with
     :func:`~neoedit.edit.pipeline.apply_edit`."""
 
     motions: list[Motion]
@@ -64,7 +58,7 @@ class Move:
         check_motions(parent, self.motions)
         sources = working_boxes(parent, [m.box for m in self.motions], cfg.remove)
         shadows: list[OrientedBox] = []
-        if not cfg.preview and cfg.method == "neo":  # NEO inpaints the source: shadow too
+        if not cfg.preview:  # NEO inpaints the source: its shadow too
             shadows = scene_shadows(parent, sources, cfg.remove.shadow)
         transforms = [np.asarray(m.transform, dtype=np.float64) for m in self.motions]
         targets = [
@@ -74,7 +68,7 @@ class Move:
         record = {
             "type": "move",
             "prompt": self.prompt,
-            "method": "preview" if cfg.preview else cfg.method,
+            "method": "preview" if cfg.preview else "neo",
             "boxes": [m.box.to_dict() for m in self.motions],
             "source_boxes": [b.to_dict() for b in sources],
             "shadow_boxes": [b.to_dict() for b in shadows],
@@ -90,7 +84,7 @@ class Move:
                 with timings.stage("preview"):
                     _preview(child, sources, targets, transforms)
                 return
-            start = _settled(parent, child, cfg, timings)
+            start = settled_start(parent, child, cfg.distill, timings)
             distil_move(
                 start, child, sources, targets, transforms, cfg, self.inpainter, timings, shadows
             )
@@ -99,51 +93,16 @@ class Move:
         return Prepared(record, run, language, cfg.language)
 
 
-@dataclass
-class SealRemove:
-    """The Seal-3D-style removal (the paper's Table I row): the whole field distilled from
-    one teacher, the current field with the grown boxes emptied, by the baseline's two
-    stages; nothing is inpainted."""
-
-    boxes: list[OrientedBox]
-    cfg: MoveConfig = field(default_factory=MoveConfig)
-    prompt: str | None = None
-
-    def prepare(self, parent: Scene) -> Prepared:
-        cfg = dataclasses.replace(self.cfg, method="seal3d", preview=False)
-        if not self.boxes:
-            raise NeoError("nothing to remove: give a prompt or --box")
-        check_edit_boxes(parent, self.boxes)
-        sources = working_boxes(parent, self.boxes, cfg.remove)
-        record = {
-            "type": "remove",
-            "prompt": self.prompt,
-            "removal": "seal3d",
-            "boxes": [b.to_dict() for b in self.boxes],
-            "edit_boxes": [b.to_dict() for b in sources],
-            "config": dataclasses.asdict(cfg),
-        }
-
-        def run(child: Scene, timings: Timings) -> None:
-            start = _settled(parent, child, cfg, timings)
-            distil_move(start, child, sources, [], [], cfg, None, timings)
-
-        return Prepared(record, run, LanguageEdit(source=sources, targets=[]))
-
-
 def _check_config(cfg: MoveConfig) -> None:
-    if cfg.method not in METHODS:
-        raise NeoError(f"unknown method {cfg.method!r} (choose from {', '.join(METHODS)})")
     if cfg.student not in STUDENTS:
         raise NeoError(f"unknown student {cfg.student!r} (choose from {', '.join(STUDENTS)})")
-    if cfg.reuse_removal_patch and (cfg.preview or cfg.method != "neo" or cfg.student != "patch"):
+    if cfg.reuse_removal_patch and (cfg.preview or cfg.student != "patch"):
         raise NeoError(
             "--edit.reuse-removal-patch applies to NEO's patch student only (not with "
-            "--preview, --method seal3d or --edit.student field)"
+            "--preview or --edit.student field)"
         )
     cfg.remove.shadow.check("--edit.remove.shadow")
     cfg.distill.check("--edit.distill")
-    cfg.seal3d.check("--edit.seal3d")
     cfg.remove.refine.check("--edit.remove.refine")
     cfg.language.check("--edit.language")
 
@@ -158,28 +117,6 @@ def move(
     """A new version of ``parent`` with every ``motions[i].box`` moved by its transform
     (``parent`` is left unchanged)."""
     return apply_edit(parent, Move(motions, cfg, prompt, inpainter))
-
-
-def distil_removal(
-    parent: Scene,
-    boxes: list[OrientedBox],
-    cfg: MoveConfig | None = None,
-    prompt: str | None = None,
-) -> Scene:
-    """:class:`SealRemove` applied to ``parent`` (left unchanged)."""
-    return apply_edit(parent, SealRemove(boxes, cfg or MoveConfig(), prompt))
-
-
-def _settled(parent: Scene, child: Scene, cfg: MoveConfig, timings: Timings) -> Scene:
-    """A preview or cut parent: settle its render-time edits into ``child`` first, and start
-    the distillation from what it shows; -> the scene to start from."""
-    settled = settle(child, cfg.distill)
-    timings.merge(settled)
-    if not settled:
-        return parent
-    start = Scene(copy.deepcopy(child.field), copy.deepcopy(child.grid), child.meta)
-    start.language, start.surface_points_m = parent.language, parent.surface_points_m
-    return start
 
 
 def _check_not_into_cuts(parent: Scene, targets: list[OrientedBox]) -> None:

@@ -56,3 +56,18 @@ def settle(scene: Scene, cfg: DistillConfig | None = None) -> dict[str, float]:
     )  # fmt: skip
     refresh_grid(scene.grid, scene.field.density, cells_in_boxes(scene.grid, boxes))
     return {"settle_s": round(time.perf_counter() - t, 2)}
+
+
+def settled_start(
+    parent: Scene, child: Scene, cfg: DistillConfig, timings: dict[str, float]
+) -> Scene:
+    """The scene an edit that trains starts from: ``parent`` itself, or, when it has
+    render-time edits, what it shows (they are settled into ``child`` first; their timings
+    are added to ``timings``)."""
+    settled = settle(child, cfg)
+    timings.update(settled)
+    if not settled:
+        return parent
+    start = Scene(copy.deepcopy(child.field), copy.deepcopy(child.grid), child.meta)
+    start.language, start.surface_points_m = parent.language, parent.surface_points_m
+    return start
