@@ -114,7 +114,7 @@ def run_scene(name: str, args: argparse.Namespace, methods: list[str]) -> tuple[
         else:
             t0 = time.perf_counter()
             edit = move_edit(method, [Motion(found, transform)], 1.0, action["object"])
-            # NEO's patch student only (the preview and the baseline refuse the option)
+            # NEO's patch student only (not the preview; the baseline has no such option)
             if isinstance(edit, Move) and not edit.cfg.preview:
                 edit.cfg.reuse_removal_patch = args.reuse_removal_patch
             scene = apply_edit(pre, edit)

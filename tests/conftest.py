@@ -1,4 +1,5 @@
-"""Shared fixtures: tiny simulated scenes generated once per test session."""
+"""Shared fixtures: tiny simulated scenes and fields, built once per test run (shared by the
+pytest-xdist workers, see :func:`built_once`)."""
 
 from __future__ import annotations
 

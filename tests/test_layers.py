@@ -55,3 +55,15 @@ def test_every_import_goes_down_a_layer():
     assert packages <= RANK.keys(), f"give these a layer: {sorted(packages - RANK.keys())}"
     upward = [f"{f}: {src} -> {dst}" for src, dst, f in edges if RANK[dst] > RANK[src]]
     assert upward == [], "\n".join(upward)
+
+
+def test_every_lazy_export_resolves():
+    """``import neoedit`` and the packages with lazy exports load names on first use: each
+    listed name must exist where the table says (a moved class must not leave a dangling
+    entry)."""
+    import importlib
+
+    for package in ("neoedit", "neoedit.edit", "neoedit.bench"):
+        module = importlib.import_module(package)
+        for name in module.__all__:
+            assert getattr(module, name) is not None, f"{package}.{name}"

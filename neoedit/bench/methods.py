@@ -133,6 +133,9 @@ def move_edit(method: str, motions: list[Motion], scale: float, prompt: str) -> 
     (the preview and the ablations are configurations of it)."""
     if method == "seal3d":
         return SealMove(motions, seal3d_config(scale), prompt)
+    if method not in ("neo", "preview", *ABLATIONS):
+        known = ", ".join(("neo", "preview", "seal3d", *ABLATIONS))
+        raise NeoError(f"unknown move method {method!r} (choose from {known})")
     return Move(motions, move_config(method, scale), prompt)
 
 

@@ -7,9 +7,11 @@ boxes with the MLPs frozen (only the hash table learns), then a global one on th
 rendered colour and depth over random rays of the scan's views (no virtual views).
 
 :class:`SealMove` and :class:`SealRemove` are edits like NEO's
-(:func:`neoedit.edit.pipeline.apply_edit` runs them; ``neo move --method seal3d`` and
-``neo bench`` use them); the distillation machinery is NEO's
-(:mod:`neoedit.edit.move_distill`), only the teacher and the schedule are the baseline's.
+(:func:`neoedit.edit.pipeline.apply_edit` runs them; ``neo move --method seal3d``,
+``neo plan --method seal3d`` and ``neo bench`` use them); the distillation machinery is
+NEO's (:mod:`neoedit.edit.move_distill`), only the teacher and the schedule are the
+baseline's. A parent with render-time edits (a preview move, a cut) is first settled by
+NEO's default distillation (:func:`neoedit.edit.settle.settled_start`), as before any edit.
 """
 
 from __future__ import annotations
@@ -70,7 +72,9 @@ class Seal3dConfig:
     schedule: DistillConfig = field(default_factory=_schedule)
     """Stage 1 (``field_steps``): the local point stage, MLPs frozen, on points in and
     around the boxes (grown by 2 cm); stage 2 (``render_steps``): the global stage, all
-    weights, on the teacher's rendered colour and depth."""
+    weights, on the teacher's rendered colour and depth. The stages set ``freeze_mlp`` and
+    ``regions_only`` themselves, and a whole-field student has no ``patch_mlp_lr_factor``:
+    those three are not read."""
     margin_m: float = RemoveConfig.margin_m
     """Each box is grown by this much (short of neighbouring objects), as NEO's are."""
     below_m: float = RefineConfig.below_m
@@ -79,6 +83,7 @@ class Seal3dConfig:
     target_floor_m: float = 0.004
     """Each target box starts this far above its source box's bottom (as NEO's)."""
     language: LanguageUpdateConfig = field(default_factory=LanguageUpdateConfig)
+    """How the language field follows the edit (as after NEO's edits)."""
 
     def check(self, where: str = "--seal3d") -> None:
         """Refuse settings the baseline cannot run with (before any work starts)."""

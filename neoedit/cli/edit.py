@@ -217,12 +217,7 @@ class MoveCommand:
 
     def run(self) -> None:
         self.query.check()  # before any loading or training
-        if self.method == "seal3d":
-            if self.preview:
-                raise NeoError(
-                    "--preview and --method seal3d do not combine: a preview trains nothing"
-                )
-            self.seal3d.check()
+        check_move_method(self.method, self.preview, self.edit, self.seal3d, "--edit")
         from neoedit.bench.seal3d import SealMove
         from neoedit.edit.pipeline import Edit, apply_edit
         from neoedit.edit.relocate import Motion, Move
@@ -296,3 +291,29 @@ def read_transform(path: Path) -> np.ndarray:
     if t.shape != (4, 4):
         raise NeoError(f"{path}: expected a 4x4 matrix (a JSON list of 4 rows of 4 numbers)")
     return t
+
+
+def check_move_method(
+    method: str, preview: bool, neo: MoveConfig, seal3d: Seal3dConfig, where: str
+) -> None:
+    """Refuse, before any work, settings the chosen method would ignore or cannot run with:
+    NEO's options (``where``.*) with the Seal-3D-style baseline, --seal3d.* with NEO, a
+    preview of the baseline."""
+    from neoedit.edit.relocate import check_move_config
+
+    if method == "seal3d":
+        if preview:
+            raise NeoError("--preview and --method seal3d do not combine: a preview trains nothing")
+        if neo != MoveConfig():
+            raise NeoError(
+                f"{where}.* options set NEO's move; with --method seal3d set the baseline with "
+                "--seal3d.* (e.g. --seal3d.margin-m, --seal3d.schedule.render-steps)"
+            )
+        seal3d.check()
+        return
+    if seal3d != Seal3dConfig():
+        raise NeoError(
+            "--seal3d.* options set the Seal-3D-style baseline: add --method seal3d, or set "
+            f"NEO's move with {where}.*"
+        )
+    check_move_config(dataclasses.replace(neo, preview=preview), where)

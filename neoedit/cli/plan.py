@@ -14,6 +14,7 @@ from rich.console import Console
 from rich.markup import escape
 
 from neoedit.bench.seal3d import Seal3dConfig
+from neoedit.cli.edit import check_json_output, check_move_method, edit_result, find_boxes
 from neoedit.edit.plan import PlanConfig
 from neoedit.errors import NeoError
 from neoedit.language.localize import QueryConfig
@@ -42,7 +43,8 @@ class PlanCommand:
     seal3d: Seal3dConfig = dataclasses.field(default_factory=Seal3dConfig)
     """The baseline's settings, with --method seal3d (--seal3d.schedule.render-steps ...)."""
     edit: PlanConfig = dataclasses.field(default_factory=PlanConfig)
-    """Move and removal settings (--edit.move.distill.render-steps, --edit.remove.margin-m ...)."""
+    """NEO's move and removal settings (--edit.move.distill.render-steps, --edit.remove.margin-m
+    ...); with --method seal3d the move steps take --seal3d.* instead."""
     query: QueryConfig = dataclasses.field(default_factory=QueryConfig)
     views: int = 3
     """Held-out views in plan.png."""
@@ -56,9 +58,7 @@ class PlanCommand:
 
     def run(self) -> None:
         self.query.check()  # before any loading or training
-        if self.method == "seal3d":
-            self.seal3d.check()
-        from neoedit.cli.edit import check_json_output, edit_result, find_boxes
+        check_move_method(self.method, self.preview, self.edit.move, self.seal3d, "--edit.move")
         from neoedit.edit.plan import apply_action, check_plan, load_plan, plan_boxes
         from neoedit.edit.remove import write_report
         from neoedit.scene import load_scene, save_scene

@@ -6,10 +6,11 @@ pipeline, :func:`apply_edit` (:mod:`neoedit.edit.pipeline`)::
     no_mug = apply_edit(scene, Remove([mug_box]))
     moved = apply_edit(scene, Move([Motion(mug_box, transform)]))
 
-The edits: :class:`Remove` (NEO's removal and inpainting, or the instant preview),
-:class:`Move` (NEO's distillation, the Seal-3D-style baseline or the preview),
-:class:`SealRemove` (the Seal-3D-style removal); ``neoedit.bench.nerfiller.NerfillerRemove``
-(the NeRFiller-style baseline). Exports load lazily (the modules import torch).
+The edits: :class:`Remove` (NEO's removal and inpainting, or the instant preview) and
+:class:`Move` (NEO's distillation, or the preview); the baselines are edits of their own
+beside the benchmark: ``neoedit.bench.seal3d.SealMove`` / ``SealRemove`` (Seal-3D-style)
+and ``neoedit.bench.nerfiller.NerfillerRemove`` (NeRFiller-style). Exports load lazily
+(the modules import torch).
 """
 
 from __future__ import annotations
@@ -23,7 +24,6 @@ _EXPORTS = {
     "Remove": "neoedit.edit.remove",
     "RemoveConfig": "neoedit.edit.remove",
     "Move": "neoedit.edit.relocate",
-    "SealRemove": "neoedit.edit.relocate",
     "Motion": "neoedit.edit.motion",
     "MoveConfig": "neoedit.edit.motion",
 }

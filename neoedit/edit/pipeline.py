@@ -1,7 +1,8 @@
 """One edit pipeline: every edit of a scene, whatever its method, runs the same sequence.
 
 An edit is a typed object (:class:`~neoedit.edit.remove.Remove`,
-:class:`~neoedit.edit.relocate.Move`, the baselines' ``SealRemove`` and ``NerfillerRemove``);
+:class:`~neoedit.edit.relocate.Move`, and the baselines beside the benchmark:
+``neoedit.bench.seal3d.SealMove`` / ``SealRemove``, ``neoedit.bench.nerfiller.NerfillerRemove``);
 :func:`apply_edit` runs it on a scene and returns the new version::
 
     prepared = edit.prepare(parent)        # checks, edit boxes, the history record: no work

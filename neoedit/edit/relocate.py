@@ -38,7 +38,7 @@ from neoedit.geometry.box import box_iou_3d
 from neoedit.rendering.occupancy import cells_in_boxes, refresh_grid
 from neoedit.scene import Scene
 
-__all__ = ["Motion", "Move", "MoveConfig", "check_motions", "move"]
+__all__ = ["Motion", "Move", "MoveConfig", "check_motions", "check_move_config", "move"]
 
 
 @dataclass
@@ -54,7 +54,7 @@ class Move:
 
     def prepare(self, parent: Scene) -> Prepared:
         cfg = self.cfg
-        _check_config(cfg)
+        check_move_config(cfg)
         check_motions(parent, self.motions)
         sources = working_boxes(parent, [m.box for m in self.motions], cfg.remove)
         shadows: list[OrientedBox] = []
@@ -93,18 +93,20 @@ class Move:
         return Prepared(record, run, language, cfg.language)
 
 
-def _check_config(cfg: MoveConfig) -> None:
+def check_move_config(cfg: MoveConfig, where: str = "--edit") -> None:
+    """Refuse settings NEO's move cannot run with (before any loading or training);
+    ``where``: the option prefix the messages name."""
     if cfg.student not in STUDENTS:
         raise NeoError(f"unknown student {cfg.student!r} (choose from {', '.join(STUDENTS)})")
     if cfg.reuse_removal_patch and (cfg.preview or cfg.student != "patch"):
         raise NeoError(
-            "--edit.reuse-removal-patch applies to NEO's patch student only (not with "
-            "--preview or --edit.student field)"
+            f"{where}.reuse-removal-patch applies to NEO's patch student only (not with "
+            f"--preview or {where}.student field)"
         )
-    cfg.remove.shadow.check("--edit.remove.shadow")
-    cfg.distill.check("--edit.distill")
-    cfg.remove.refine.check("--edit.remove.refine")
-    cfg.language.check("--edit.language")
+    cfg.remove.shadow.check(f"{where}.remove.shadow")
+    cfg.distill.check(f"{where}.distill")
+    cfg.remove.refine.check(f"{where}.remove.refine")
+    cfg.language.check(f"{where}.language")
 
 
 def move(
