@@ -26,7 +26,7 @@ import numpy as np
 from neoedit.edit.checks import check_edit_boxes
 from neoedit.edit.distill import DistillConfig, RayPool, distill
 from neoedit.edit.language_update import LanguageEdit, LanguageUpdateConfig
-from neoedit.edit.motion import Motion, check_motions
+from neoedit.edit.motion import Motion, MoveRegions, check_motions
 from neoedit.edit.move_distill import (
     base_field,
     distillation_grids,
@@ -116,29 +116,14 @@ class SealMove:
         cfg.check()
         check_motions(parent, self.motions)
         sources = cfg.working_boxes(parent, [m.box for m in self.motions])
-        transforms = [np.asarray(m.transform, dtype=np.float64) for m in self.motions]
-        targets = [
-            s.transformed(t).lifted_bottom(cfg.target_floor_m)
-            for s, t in zip(sources, transforms, strict=True)
-        ]
-        record = {
-            "type": "move",
-            "prompt": self.prompt,
-            "method": "seal3d",
-            "boxes": [m.box.to_dict() for m in self.motions],
-            "source_boxes": [b.to_dict() for b in sources],
-            "shadow_boxes": [],
-            "target_boxes": [b.to_dict() for b in targets],
-            "transforms": [t.round(9).tolist() for t in transforms],
-            "config": dataclasses.asdict(cfg),
-        }
+        move = MoveRegions.of(self.motions, sources, cfg.target_floor_m)
+        record = move.record(self.prompt, "seal3d", self.motions, [], cfg)
 
         def run(child: Scene, timings: Timings) -> None:
             start = settled_start(parent, child, DistillConfig(), timings)  # NEO's settling
-            seal3d_distil(start, child, sources, targets, transforms, cfg, timings)
+            seal3d_distil(start, child, sources, move.targets, move.transforms, cfg, timings)
 
-        language = LanguageEdit(sources, list(zip(targets, transforms, strict=True)))
-        return Prepared(record, run, language, cfg.language)
+        return Prepared(record, run, move.language(), cfg.language)
 
 
 @dataclass

@@ -13,9 +13,9 @@ import tyro
 from rich.console import Console
 from rich.markup import escape
 
-from neoedit.bench.seal3d import Seal3dConfig
+from neoedit.bench.seal3d import Seal3dConfig, SealMove
 from neoedit.edit.history import edit_lock
-from neoedit.edit.relocate import MoveConfig
+from neoedit.edit.relocate import MoveConfig, check_move_config
 from neoedit.edit.remove import RemoveConfig
 from neoedit.errors import NeoError
 from neoedit.geometry import OrientedBox
@@ -218,7 +218,6 @@ class MoveCommand:
     def run(self) -> None:
         self.query.check()  # before any loading or training
         check_move_method(self.method, self.preview, self.edit, self.seal3d, "--edit")
-        from neoedit.bench.seal3d import SealMove
         from neoedit.edit.pipeline import Edit, apply_edit
         from neoedit.edit.relocate import Motion, Move
         from neoedit.edit.remove import write_report
@@ -299,8 +298,6 @@ def check_move_method(
     """Refuse, before any work, settings the chosen method would ignore or cannot run with:
     NEO's options (``where``.*) with the Seal-3D-style baseline, --seal3d.* with NEO, a
     preview of the baseline."""
-    from neoedit.edit.relocate import check_move_config
-
     if method == "seal3d":
         if preview:
             raise NeoError("--preview and --method seal3d do not combine: a preview trains nothing")

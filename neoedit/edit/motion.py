@@ -4,13 +4,15 @@ the distillation, the ablations' switches)."""
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
 from neoedit.edit.checks import check_edit_boxes
 from neoedit.edit.distill import DistillConfig
-from neoedit.edit.language_update import LanguageUpdateConfig
+from neoedit.edit.language_update import LanguageEdit, LanguageUpdateConfig
 from neoedit.edit.refine import RefineConfig
 from neoedit.edit.remove import RemoveConfig
 from neoedit.errors import NeoError
@@ -82,6 +84,53 @@ class Motion:
 
     box: OrientedBox
     transform: np.ndarray
+
+
+@dataclass
+class MoveRegions:
+    """A move resolved on its parent, whatever the method: per object the source box (as the
+    method grew it), the 4x4 motion and the target region (the source under the motion, its
+    bottom lifted so the support there stays the current field's)."""
+
+    sources: list[OrientedBox]
+    transforms: list[np.ndarray]
+    targets: list[OrientedBox]
+
+    @classmethod
+    def of(
+        cls, motions: list[Motion], sources: list[OrientedBox], target_floor_m: float
+    ) -> MoveRegions:
+        transforms = [np.asarray(m.transform, dtype=np.float64) for m in motions]
+        targets = [
+            s.transformed(t).lifted_bottom(target_floor_m)
+            for s, t in zip(sources, transforms, strict=True)
+        ]
+        return cls(sources, transforms, targets)
+
+    def record(
+        self,
+        prompt: str | None,
+        method: str,
+        motions: list[Motion],
+        shadows: list[OrientedBox],
+        config: Any,
+    ) -> dict[str, Any]:
+        """The history entry of the move (``config``: the method's configuration)."""
+        return {
+            "type": "move",
+            "prompt": prompt,
+            "method": method,
+            "boxes": [m.box.to_dict() for m in motions],
+            "source_boxes": [b.to_dict() for b in self.sources],
+            "shadow_boxes": [b.to_dict() for b in shadows],
+            "target_boxes": [b.to_dict() for b in self.targets],
+            "transforms": [t.round(9).tolist() for t in self.transforms],
+            "config": dataclasses.asdict(config),
+        }
+
+    def language(self) -> LanguageEdit:
+        """The query cloud loses the sources and gains the targets."""
+        return LanguageEdit(self.sources, list(zip(self.targets, self.transforms, strict=True)))
 
 
 def check_motions(scene: Scene, motions: list[Motion]) -> None:

@@ -19,14 +19,12 @@ The output has the structure of its input (one radiance field + language field),
 a valid input to every verb, another move included.
 """
 
-import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from neoedit.edit.inpaint import Inpainter
-from neoedit.edit.language_update import LanguageEdit
-from neoedit.edit.motion import STUDENTS, Motion, MoveConfig, check_motions
+from neoedit.edit.motion import STUDENTS, Motion, MoveConfig, MoveRegions, check_motions
 from neoedit.edit.move_distill import distil_move
 from neoedit.edit.pipeline import Prepared, Timings, apply_edit
 from neoedit.edit.remove import working_boxes
@@ -60,22 +58,10 @@ class Move:
         shadows: list[OrientedBox] = []
         if not cfg.preview:  # NEO inpaints the source: its shadow too
             shadows = scene_shadows(parent, sources, cfg.remove.shadow)
-        transforms = [np.asarray(m.transform, dtype=np.float64) for m in self.motions]
-        targets = [
-            s.transformed(t).lifted_bottom(cfg.target_floor_m)
-            for s, t in zip(sources, transforms, strict=True)
-        ]
-        record = {
-            "type": "move",
-            "prompt": self.prompt,
-            "method": "preview" if cfg.preview else "neo",
-            "boxes": [m.box.to_dict() for m in self.motions],
-            "source_boxes": [b.to_dict() for b in sources],
-            "shadow_boxes": [b.to_dict() for b in shadows],
-            "target_boxes": [b.to_dict() for b in targets],
-            "transforms": [t.round(9).tolist() for t in transforms],
-            "config": dataclasses.asdict(cfg),
-        }
+        move = MoveRegions.of(self.motions, sources, cfg.target_floor_m)
+        targets, transforms = move.targets, move.transforms
+        method = "preview" if cfg.preview else "neo"
+        record = move.record(self.prompt, method, self.motions, shadows, cfg)
         if cfg.preview:
             _check_not_into_cuts(parent, targets)
 
@@ -89,8 +75,7 @@ class Move:
                 start, child, sources, targets, transforms, cfg, self.inpainter, timings, shadows
             )
 
-        language = LanguageEdit(sources, list(zip(targets, transforms, strict=True)))
-        return Prepared(record, run, language, cfg.language)
+        return Prepared(record, run, move.language(), cfg.language)
 
 
 def check_move_config(cfg: MoveConfig, where: str = "--edit") -> None:
