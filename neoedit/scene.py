@@ -41,6 +41,7 @@ from neoedit.fields.composed import moved_field
 from neoedit.fields.language import LanguageField, LanguageFieldConfig, TextEncoderSpec
 from neoedit.fields.patched import PatchedField
 from neoedit.fields.radiance import Field, RadianceField, RadianceFieldConfig
+from neoedit.fields.stored import field_tensors, load_parts, part_records, prefixed
 from neoedit.fields.suppressed import with_removals
 from neoedit.geometry import OrientedBox
 from neoedit.rendering.occupancy import OccupancyGrid, OccupancyGridConfig
@@ -105,6 +106,10 @@ class SceneMeta:
     patches: list[dict[str, Any]] = dataclasses.field(default_factory=list)
     """Local edits in the weights: ``{"region": [boxes], "version": id}`` per patch field,
     which answers for every point inside its boxes (later patches over earlier ones)."""
+    shades: list[dict[str, Any]] = dataclasses.field(default_factory=list)
+    """Shadows laid on the field by moves: ``{"box": slab, "after": n, "version": id}`` per
+    shade, its ratio map stored with the weights; it darkens what the first ``n`` parts
+    answer in its slab (:mod:`neoedit.fields.shade`)."""
     edits: list[dict[str, Any]] = dataclasses.field(default_factory=list)
     """Edit history from the original scan to this version (type, prompt, box, parameters,
     parent version, seconds), oldest first."""
@@ -235,29 +240,18 @@ def save_scene(
 
 
 def _sync_patches(scene: Scene) -> None:
-    """``meta.patches`` from the field (patches added since loading belong to this version;
-    a field an edit replaced by a plain one, e.g. a whole-field student, has none)."""
-    if not isinstance(scene.field, PatchedField):
-        scene.meta.patches = []
-    else:
-        known = scene.meta.patches
-        scene.meta.patches = []
-        transforms = scene.field.part_transforms()
-        for i, region in enumerate(scene.field.regions):
-            entry: dict[str, Any] = {
-                "region": [b.to_dict() for b in region],
-                "version": known[i]["version"] if i < len(known) else scene.meta.version_id,
-            }
-            motion = transforms[i]
-            if motion is not None:
-                entry["transform"] = np.round(motion, 12).tolist()
-            scene.meta.patches.append(entry)
+    """``meta.patches`` and ``meta.shades`` from the field (parts added since loading belong
+    to this version)."""
+    meta = scene.meta
+    meta.patches, meta.shades = part_records(
+        scene.field, meta.patches, meta.shades, meta.version_id
+    )
 
 
 def _scene_groups(scene: Scene) -> dict[str, dict[str, torch.Tensor]]:
     """The tensors of a version: 'field' (weights, patches, occupancy grid) and, with a
     language field, 'language' (its weights and the query point cloud)."""
-    field_ = _field_tensors(scene.field)
+    field_ = field_tensors(scene.field)
     field_["grid.density"] = scene.grid.density.detach().cpu().contiguous()
     field_["grid.n_updates"] = scene.grid.n_updates.detach().cpu().reshape(1)
     groups = {"field": field_}
@@ -345,24 +339,13 @@ def _apply_groups(scene: Scene, groups: dict[str, dict[str, torch.Tensor]], path
     device = scene.field.aabb.device
     try:
         base = scene.field.base if isinstance(scene.field, PatchedField) else scene.field
-        base.load_state_dict(_state(tensors, "field."))  # type: ignore[union-attr]
-        if meta.patches:
-            patched = scene.patched()
-            for i, p in enumerate(meta.patches):
-                state = _state(tensors, f"patch{i}.")
-                if i < len(patched.patches):
-                    patched.patches[i].load_state_dict(state)
-                    continue
-                region = [OrientedBox.from_dict(b) for b in p["region"]]
-                if "transform" in p:  # a carried part: frozen weights under a motion
-                    motion = np.asarray(p["transform"], dtype=np.float64)
-                    patched.add_carried(region, motion, base).load_state_dict(state)
-                else:
-                    patched.add_patch(region).load_state_dict(state)
+        base.load_state_dict(prefixed(tensors, "field."))  # type: ignore[union-attr]
+        if meta.patches or meta.shades:
+            load_parts(scene.patched(), meta.patches, meta.shades, tensors)
         scene.grid.density.copy_(tensors["grid.density"])
         scene.grid.n_updates.copy_(tensors["grid.n_updates"][0])
         scene.grid.refresh_mask()
-    except (RuntimeError, KeyError) as e:
+    except (RuntimeError, KeyError, ValueError) as e:
         raise NeoError(f"{weights}: weights do not match the scene config: {e}") from None
     if meta.language is not None:
         if "language" not in groups:
@@ -372,23 +355,6 @@ def _apply_groups(scene: Scene, groups: dict[str, dict[str, torch.Tensor]], path
         scene.language.to(device)  # type: ignore[union-attr]
         scene.surface_points_m = scene.surface_points_m.to(device)  # type: ignore[union-attr]
     scene.field.to(device)
-
-
-def _field_tensors(field: RadianceField | PatchedField) -> dict[str, torch.Tensor]:
-    """Flat tensors of a field: the base under ``field.``, patch i under ``patch{i}.``."""
-    parts: list[tuple[str, torch.nn.Module]] = [("field.", field)]
-    if isinstance(field, PatchedField):
-        parts = [("field.", field.base)]  # type: ignore[list-item]
-        parts += [(f"patch{i}.", p) for i, p in enumerate(field.patches)]
-    return {
-        prefix + k: v.detach().cpu().contiguous()
-        for prefix, module in parts
-        for k, v in module.state_dict().items()
-    }
-
-
-def _state(tensors: dict[str, torch.Tensor], prefix: str) -> dict[str, torch.Tensor]:
-    return {k.removeprefix(prefix): v for k, v in tensors.items() if k.startswith(prefix)}
 
 
 def _load_language(

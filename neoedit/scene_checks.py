@@ -80,6 +80,11 @@ def check_scene_meta(meta: Any, path: Path) -> None:
         check_box_dicts(p["region"], f"{where}: patches[{i}].region")
         if "transform" in p and not _is_rigid(p["transform"]):
             raise NeoError(f"{where}: patches[{i}].transform must be a rigid 4x4 matrix")
+    for i, shade in enumerate(getattr(meta, "shades", None) or []):
+        after = shade.get("after") if isinstance(shade, Mapping) else None
+        if not isinstance(after, int) or after < 0 or "box" not in shade:
+            raise NeoError(f"{where}: shades[{i}] needs a 'box' and an 'after' count >= 0")
+        check_box_dicts([shade["box"]], f"{where}: shades[{i}].box")
     for i, move in enumerate(getattr(meta, "moves", None) or []):
         ok = isinstance(move, Mapping) and {"source", "target", "transform"} <= move.keys()
         if not ok or not _is_rigid(move["transform"]):

@@ -180,6 +180,11 @@ def test_move_end_to_end(move_scene: Path, sim_root: Path, tmp_path: Path):
     own_target = OrientedBox.from_dict(record["target_boxes"][0])
     assert _mean_density(parent, own_source) > 20 * _mean_density(moved, own_source)
     assert _mean_density(moved, own_target) > 20 * _mean_density(parent, own_target)
+    # the shadow found at the source (if any) is laid around the target, under the object
+    # carried there (which it never darkens)
+    assert len(moved.field.shades) == len(record["shade_boxes"]) == len(moved.meta.shades)
+    carried = [i for i, t in enumerate(moved.field.part_transforms()) if t is not None]
+    assert carried and all(s.after <= min(carried) for s in moved.field.shades)
     # the target box now renders what the composite (the teacher without inpainting) shows
     # there, and the rest of the scene renders as before
     motion = Motion(OrientedBox.from_dict(moved.meta.edits[-1]["boxes"][0]), transform)

@@ -236,3 +236,64 @@ def test_a_carried_part_is_stored_against_the_base_in_a_scene_store():
     parent = {"field.encoding.table": None, "patch0.encoding.table": None}
     assert "field.encoding.table" in _candidates("patch1.field.encoding.table", parent)
     assert set(_candidates("patch1.encoding.table", parent)) == set(parent)
+
+
+def _slab_cells(slab: OrientedBox, n: int, z: float) -> torch.Tensor:
+    """World points (n*n,3) at the centres of an n x n map over the slab's x/y extent (the
+    outer ones a hair inside its faces)."""
+    hx, hy = np.asarray(slab.half_extents[:2]) * (1 - 1e-4)
+    gx, gy = np.meshgrid(np.linspace(-hx, hx, n), np.linspace(-hy, hy, n), indexing="ij")
+    local = np.stack([gx.ravel(), gy.ravel(), np.zeros(n * n)], 1)
+    world = local @ slab.rotation.T + np.asarray(slab.center_m) + [0.0, 0.0, z]
+    return torch.as_tensor(world, dtype=torch.float32)
+
+
+def test_a_shade_darkens_what_older_parts_answer_in_its_slab_and_nothing_else():
+    """At the map's cell centres the colour is the base's times the cell's ratio; the part
+    carried in after the shade (the moved object), and every point outside the slab, are
+    answered exactly as without it."""
+    base = RadianceField(CFG, AABB, seed=1)
+    field = PatchedField(base)
+    slab = OrientedBox((0.1, -0.05, 0.0), (0.2, 0.16, 0.02), 30.0)
+    n = 6
+    ratio = torch.linspace(0.2, 1.0, n * n).reshape(n, n)
+    field.add_shade(slab, ratio)
+    corner = np.asarray(slab.center_m) + slab.rotation @ [0.07, 0.055, 0.02]
+    thing = OrientedBox(tuple(corner), (0.05, 0.05, 0.06), 30.0)  # stands on the slab
+    field.add_carried([thing], np.eye(4), base)
+    pts = _slab_cells(slab, n, 0.002)
+    dirs = torch.nn.functional.normalize(torch.randn(len(pts), 3), dim=-1)
+    held = torch.as_tensor(thing.contains(pts.numpy()))
+    assert 0 < int(held.sum()) < len(pts)
+    with torch.no_grad():
+        sigma, rgb = field(pts, dirs)
+        s0, c0 = base(pts, dirs)
+    factor = torch.where(held, torch.ones(len(pts)), ratio.reshape(-1))
+    assert torch.allclose(sigma, s0, atol=1e-6)  # a shade never changes density
+    assert torch.allclose(rgb, c0 * factor[:, None], atol=1e-4)
+    gen = torch.Generator().manual_seed(4)
+    far = AABB[0] + torch.rand(3000, 3, generator=gen) * (AABB[1] - AABB[0])
+    far = far[~torch.as_tensor(slab.contains(far.numpy()))]
+    far = far[~torch.as_tensor(thing.contains(far.numpy()))]
+    fdirs = torch.nn.functional.normalize(torch.randn(len(far), 3, generator=gen), dim=-1)
+    with torch.no_grad():
+        assert torch.equal(field(far, fdirs)[1], base(far, fdirs)[1])
+
+
+def test_a_shade_round_trips_with_its_scene(trained: Path, tmp_path: Path):
+    scene = load_scene(trained)
+    slab = OrientedBox((0.02, 0.0, 0.0), (0.12, 0.12, 0.02), -20.0)
+    ratio = torch.rand(9, 9, generator=torch.Generator().manual_seed(2)) * 0.5 + 0.5
+    scene.patched().add_shade(slab, ratio)
+    save_scene(tmp_path / "v", scene)
+    again = load_scene(tmp_path / "v")
+    assert again.meta.shades == [
+        {"box": slab.to_dict(), "after": 0, "version": scene.meta.version_id}
+    ]
+    (shade,) = again.field.shades
+    assert torch.equal(shade.ratio, ratio) and shade.after == 0
+    pts = _slab_cells(slab, 17, 0.0)
+    dirs = torch.nn.functional.normalize(torch.ones_like(pts), dim=-1)
+    with torch.no_grad():
+        assert torch.allclose(again.field(pts, dirs)[1], scene.field(pts, dirs)[1])
+        assert not torch.allclose(again.field(pts, dirs)[1], again.field.base(pts, dirs)[1])

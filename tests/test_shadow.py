@@ -11,7 +11,7 @@ from torch import nn
 
 from neoedit.cameras import Cameras
 from neoedit.cameras.cameras import look_at
-from neoedit.edit.shadow import ShadowConfig, shadow_slab, shadow_slabs
+from neoedit.edit.shadow import ShadowConfig, find_shadow, shadow_slab, shadow_slabs
 from neoedit.errors import NeoError
 from neoedit.eval.footprint import FootprintContrast, footprint_contrast
 from neoedit.geometry import OrientedBox
@@ -56,6 +56,83 @@ def test_a_shadow_beside_the_footprint_is_found_and_held_by_the_slab():
     assert 0.0 < bottom < 0.005 and slab.size_m[2] < 0.02  # thin, and the table is not cut
 
 
+class Painted(Table):
+    """The same table, its colour (N,3) painted by ``paint(x, y)``."""
+
+    def __init__(self, paint):
+        super().__init__(None)
+        self.paint = paint
+
+    def forward(self, points, directions):
+        return self.density(points), self.paint(points[:, 0], points[:, 1])
+
+
+def _wood(x, y, shadow=None):
+    """A grey table with 3 mm stripes 6 % lighter and darker (a grain as dark, cell by
+    cell, as a soft shadow), darkened 12 % where ``shadow``."""
+    grey = 0.6 * (1 + 0.06 * torch.sign(torch.sin(x * 2 * np.pi / 0.006)))
+    if shadow is not None:
+        grey = torch.where(shadow(x, y), 0.88 * grey, grey)
+    return grey[:, None].expand(-1, 3)
+
+
+def test_the_shadows_ratio_is_measured_and_laid_around_a_target_translated():
+    def shadow(x, y):
+        return (x > 0.0) & (x < 0.07) & (y.abs() < 0.03)
+
+    found = find_shadow(Table(shadow), OBJECT, ShadowConfig())
+    assert found is not None
+    np.testing.assert_allclose(found.ratio.min(), 0.5, atol=0.03)  # 0.3 on 0.6
+    gx, gy = np.meshgrid(found.axis, found.axis, indexing="ij")
+    far = np.hypot(gx, gy) > 0.1
+    assert (found.ratio[far] == 1.0).all()  # the lit table is left as it is
+    assert abs(found.support_z_m) < 1e-3  # the table top, under the box's bottom
+    motion = np.eye(4)
+    motion[:3, :3] = [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]  # 90 deg of yaw
+    motion[:3, 3] = (0.2, -0.1, 0.03)  # onto a shelf 3 cm higher
+    slab, ratio = found.shade_at(motion)
+    assert np.allclose(slab.center_m, (0.2, -0.1, 0.03), atol=1e-3)  # on the new support
+    assert slab.yaw_deg == OBJECT.yaw_deg  # the light did not turn with the object
+    assert np.isclose(slab.size_m[0], found.axis[-1] - found.axis[0])
+    assert ratio.shape == found.ratio.shape and ratio.dtype == np.float32
+
+
+def test_a_soft_shadow_is_told_from_a_grain_as_dark_and_a_base_of_another_hue_is_not_one():
+    def beside(x, y):
+        return (x > 0.0) & (x < 0.08) & (y.abs() < 0.035)
+
+    assert find_shadow(Painted(_wood), OBJECT, ShadowConfig()) is None
+    soft = find_shadow(Painted(lambda x, y: _wood(x, y, beside)), OBJECT, ShadowConfig())
+    assert soft is not None and 0.8 < soft.ratio.min() < 0.95
+
+    def red_base(x, y):  # an object's red base seen inside its box, on the table's plane
+        rgb = _wood(x, y).clone()
+        rgb[(x**2 + y**2) < 0.015**2] = torch.tensor([0.5, 0.05, 0.05])
+        return rgb
+
+    assert find_shadow(Painted(red_base), OBJECT, ShadowConfig()) is None
+
+
+def test_no_shadow_is_looked_for_on_a_checkerboard():
+    """A checker's dark squares touching the footprint are as dark as any shadow and of
+    the same hue: on a support that textured the search finds nothing, shadow or not."""
+
+    def checker(x, y, shadow=None):
+        odd = (torch.floor(x / 0.025) + torch.floor(y / 0.025)) % 2 == 1
+        grey = torch.where(odd, 0.25, 0.6)
+        if shadow is not None:
+            grey = torch.where(shadow(x, y), 0.5 * grey, grey)
+        return grey[:, None].expand(-1, 3)
+
+    def beside(x, y):
+        return (x > 0.0) & (x < 0.08) & (y.abs() < 0.035)
+
+    assert find_shadow(Painted(checker), OBJECT, ShadowConfig()) is None
+    shaded = Painted(lambda x, y: checker(x, y, beside))
+    assert find_shadow(shaded, OBJECT, ShadowConfig()) is None
+    assert find_shadow(shaded, OBJECT, ShadowConfig(max_texture=1.0)) is not None
+
+
 def test_no_shadow_no_slab_and_a_dark_spot_apart_is_not_a_shadow():
     assert (
         shadow_slab(
@@ -72,7 +149,16 @@ def test_no_shadow_no_slab_and_a_dark_spot_apart_is_not_a_shadow():
     assert shadow_slabs(Table(lambda x, y: x > 0), [OBJECT], off) == []
 
 
-@pytest.mark.parametrize("field,value", [("darker", 1.0), ("cell_m", 0.0), ("reach", -1.0)])
+@pytest.mark.parametrize(
+    "field,value",
+    [
+        ("darker", 1.0),
+        ("cell_m", 0.0),
+        ("reach", -1.0),
+        ("smooth_cells", -1.0),
+        ("max_texture", 2.0),
+    ],
+)
 def test_bad_shadow_settings_are_refused(field, value):
     with pytest.raises(NeoError, match=field.replace("_", "-")):
         ShadowConfig(**{field: value}).check()

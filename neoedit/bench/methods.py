@@ -70,6 +70,7 @@ ABLATIONS: dict[str, Callable[[MoveConfig], MoveConfig]] = {
             c.remove, shadow=dataclasses.replace(c.remove.shadow, enabled=False)
         ),
     ),
+    "no-shadow-follow": lambda c: dataclasses.replace(c, shadow_follows=False),
     "distil-target": lambda c: dataclasses.replace(c, carry=False),
 }
 ASSEMBLY_METHODS = ("neo", "seal3d", "oracle")
@@ -89,7 +90,8 @@ LABELS = {
     "no-grid-inpaint": "w/o 2x2 grid inpainting",
     "no-mask-cond": "w/o mask-conditioned training",
     "field-distill-only": "field distillation only",
-    "no-shadow": "w/o shadow removal at the source",
+    "no-shadow": "w/o shadow removal at the source (nor laid at the target)",
+    "no-shadow-follow": "shadow removed at the source, not laid at the target",
     "distil-target": "moved object distilled (the paper's student), not carried",
 }
 

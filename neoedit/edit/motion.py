@@ -66,6 +66,11 @@ class MoveConfig:
     (+0.92 / +0.56 / -0.06), Out +0.06 dB, 7 % less time; on beer_can the moved can keeps
     its print. False: the paper's design, the target patch distilled from the composed
     teacher (NEO's patch student only)."""
+    shadow_follows: bool = True
+    """The shadow found at a source (``remove.shadow``) is laid down again around its
+    target: a shade, a ratio map on the target's support (neoedit/fields/shade.py),
+    translated with the object. With ``carry`` only (a distilled target learns from a
+    teacher without it)."""
     student: str = "patch"
     """'patch': the student is a new patch of the field, initialised from the current
     weights, owning the source boxes with the support under them (its MLPs learn at

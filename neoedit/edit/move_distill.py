@@ -141,11 +141,14 @@ def _students(
     patch_mode: bool,
     removed: PatchedField | None,
     carried: list[tuple[OrientedBox, np.ndarray]] | None = None,
+    shades: list[tuple[OrientedBox, np.ndarray]] | None = None,
 ) -> RadianceField | list[tuple[RadianceField, float]]:
     """What the distillation trains, with each part's MLP rate factor; sets ``child.field``
     for a patch student. ``removed`` (the parent's field with the removal's patch): keep
     that patch as the source part. ``carried`` (per target: its source box and motion):
-    the target parts are the parent's own weights under the motion, frozen, not students."""
+    the target parts are the parent's own weights under the motion, frozen, not students,
+    with the ``shades`` (slab, ratio map: the objects' shadows at their targets) laid on
+    what renders around them."""
     if carried is not None:
         pf = parent.field
         inits = [pf.renderer_inside(s) if isinstance(pf, PatchedField) else pf for s, _ in carried]
@@ -154,6 +157,8 @@ def _students(
         students = []
         if removed is None:  # the hole is distilled from the composed teacher
             students.append((patched.add_patch(source_regions), dcfg.mlp_lr_factor))
+        for slab, ratio in shades or []:  # before the objects: their own colours stay
+            patched.add_shade(slab, torch.as_tensor(ratio))
         for target, init, (_, motion) in zip(targets, inits, carried, strict=True):
             patched.add_carried([target], motion, init)
         return students
@@ -188,12 +193,14 @@ def distil_move(
     inpainter: Inpainter | None,
     timings: Timings,
     shadows: list[OrientedBox] | None = None,
+    shades: list[tuple[OrientedBox, np.ndarray]] | None = None,
 ) -> None:
     """Build NEO's teacher, distil it into ``child.field`` (a patch for the hole and a
     carried part per target; with ``carry`` off two patches, with ``student='field'`` a
     plain radiance field initialised from the parent's weights) and refresh ``child.grid``.
     ``shadows``: slabs on the support around the sources (their shadows), emptied and
-    inpainted with them."""
+    inpainted with them; ``shades`` (slab, ratio map): the shadows laid around the targets
+    of a carried object."""
     shadows = shadows or []
     with timings.stage("teacher"):
         teacher, removed, built = _teacher(
@@ -219,7 +226,7 @@ def distil_move(
         carry = cfg.carry and patch_mode
         carried = list(zip(sources, transforms, strict=True)) if carry else None
         students = _students(
-            parent, child, source_regions, targets, dcfg, patch_mode, keep, carried
+            parent, child, source_regions, targets, dcfg, patch_mode, keep, carried, shades
         )
     losses: dict[str, float] = {}
     with timings.stage("distill"):

@@ -29,7 +29,7 @@ from neoedit.edit.move_distill import distil_move
 from neoedit.edit.pipeline import Prepared, Timings, apply_edit
 from neoedit.edit.remove import working_boxes
 from neoedit.edit.settle import settled_start
-from neoedit.edit.shadow import scene_shadows
+from neoedit.edit.shadow import Shadow, scene_shadows
 from neoedit.errors import NeoError
 from neoedit.geometry import OrientedBox
 from neoedit.geometry.box import box_iou_3d
@@ -55,13 +55,16 @@ class Move:
         check_move_config(cfg)
         check_motions(parent, self.motions)
         sources = working_boxes(parent, [m.box for m in self.motions], cfg.remove)
-        shadows: list[OrientedBox] = []
+        found: list[Shadow | None] = []
         if not cfg.preview:  # NEO inpaints the source: its shadow too
-            shadows = scene_shadows(parent, sources, cfg.remove.shadow)
+            found = scene_shadows(parent, sources, cfg.remove.shadow)
+        shadows = [s.slab for s in found if s is not None]
         move = MoveRegions.of(self.motions, sources, cfg.target_floor_m)
         targets, transforms = move.targets, move.transforms
+        shades = _shades(found, transforms, cfg)
         method = "preview" if cfg.preview else "neo"
         record = move.record(self.prompt, method, self.motions, shadows, cfg)
+        record["shade_boxes"] = [box.to_dict() for box, _ in shades]
         if cfg.preview:
             _check_not_into_cuts(parent, targets)
 
@@ -72,10 +75,22 @@ class Move:
                 return
             start = settled_start(parent, child, cfg.distill, timings)
             distil_move(
-                start, child, sources, targets, transforms, cfg, self.inpainter, timings, shadows
-            )
+                start, child, sources, targets, transforms, cfg, self.inpainter, timings, shadows,
+                shades,
+            )  # fmt: skip
 
         return Prepared(record, run, move.language(), cfg.language)
+
+
+def _shades(
+    found: list[Shadow | None], transforms: list[np.ndarray], cfg: MoveConfig
+) -> list[tuple[OrientedBox, np.ndarray]]:
+    """The shadows found at the sources laid down under their motions (slab, ratio map),
+    when they follow the object: NEO's carried object only (a distilled target, or the
+    whole-field student, learns the target from a teacher without them)."""
+    if cfg.preview or not (cfg.shadow_follows and cfg.carry and cfg.student == "patch"):
+        return []
+    return [s.shade_at(t) for s, t in zip(found, transforms, strict=True) if s is not None]
 
 
 def check_move_config(cfg: MoveConfig, where: str = "--edit") -> None:

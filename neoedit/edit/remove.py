@@ -108,7 +108,8 @@ class Remove:
         work = working_boxes(parent, self.boxes, cfg)
         shadows = []
         if cfg.inpaint:  # the shadow goes with the object (a render-time cut keeps it)
-            shadows = scene_shadows(parent, work, cfg.shadow)
+            found = scene_shadows(parent, work, cfg.shadow)
+            shadows = [s.slab for s in found if s is not None]
             work += shadows
         inpaint = type(self.inpainter).__name__ if self.inpainter else cfg.inpainter
         record = {

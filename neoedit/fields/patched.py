@@ -10,7 +10,8 @@ version and every renderer evaluates the patched field.
 A patch owns one or more boxes (a removal of several objects trains one patch). Later
 patches take precedence over earlier ones where regions overlap. A *carried* part (a move
 that keeps the object's own weights) is a frozen copy of the field seen through the move's
-rigid motion, owning the target box.
+rigid motion, owning the target box. A *shade* (:mod:`neoedit.fields.shade`) darkens the
+support where a moved object now casts its shadow.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from torch import nn
 from neoedit.fields.composed import ComposedField, TransformedField
 from neoedit.fields.radiance import Field, RadianceField
 from neoedit.fields.room import RoomField
+from neoedit.fields.shade import Shade, apply_shades
 from neoedit.geometry import OrientedBox, points_in_box
 
 
@@ -39,6 +41,25 @@ class PatchedField(ComposedField):
 
     def __init__(self, base: RadianceField):
         super().__init__(base)
+        self.shades = nn.ModuleList()
+
+    def forward(
+        self, points: torch.Tensor, directions: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """sigma (N,) and rgb (N,3) of the composed parts, the shades applied."""
+        sigma, rgb = super().forward(points, directions)
+        if len(self.shades) and len(points):
+            shades = cast(list[Shade], list(self.shades))
+            rgb = apply_shades(shades, points, rgb, self.owner)
+        return sigma, rgb
+
+    def add_shade(self, box: OrientedBox, ratio: torch.Tensor) -> Shade:
+        """Darken the colours in the slab ``box`` by the ratio map ``ratio`` (n, n) over its
+        x/y extent, for what the parts that exist now answer (parts added later, such as the
+        object carried to the target, are not darkened)."""
+        shade = Shade(box, ratio.to(self.aabb.device), after=len(self.parts))
+        self.shades.append(shade)
+        return shade
 
     @property
     def patches(self) -> nn.ModuleList:
