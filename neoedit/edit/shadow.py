@@ -6,9 +6,9 @@ ghost of the object on the table (56 % of removal_1's Out pixels are that table;
 :func:`shadow_slab` finds it in the field itself: rays over a grid around the footprint,
 coming down from outside at the scan's elevation, render the support, and the cells darker
 than the support further out (blurred a little, of the support's hue, on a support not
-patterned more strongly than a shadow), connected to the footprint, are the shadow. The slab — a thin box on the support holding
-them — joins the removal's region, so the patch re-learns that table from the inpainted
-views like the table under the object. A move also lays the shadow down again where the
+patterned more strongly than a shadow), connected to the footprint, are the shadow. The
+slab — a thin box on the support holding them — joins the removal's region, so the patch
+re-learns that table from the inpainted views like the table under the object. A move also lays the shadow down again where the
 object goes: :meth:`Shadow.shade_at` gives the ratio map (the shadowed support's luminance
 over the lit support's) translated under the motion, which the field applies as a shade
 (:mod:`neoedit.fields.shade`).
