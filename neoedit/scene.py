@@ -108,8 +108,8 @@ class SceneMeta:
     which answers for every point inside its boxes (later patches over earlier ones)."""
     shades: list[dict[str, Any]] = dataclasses.field(default_factory=list)
     """Shadows laid on the field by moves: ``{"box": slab, "after": n, "version": id}`` per
-    shade, its ratio map stored with the weights; it darkens what the first ``n`` parts
-    answer in its slab (:mod:`neoedit.fields.shade`)."""
+    shade, its ratio map stored with the weights; it darkens what the base and the parts
+    with an index below ``n`` answer in its slab (:mod:`neoedit.fields.shade`)."""
     edits: list[dict[str, Any]] = dataclasses.field(default_factory=list)
     """Edit history from the original scan to this version (type, prompt, box, parameters,
     parent version, seconds), oldest first."""

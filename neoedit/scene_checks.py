@@ -82,8 +82,13 @@ def check_scene_meta(meta: Any, path: Path) -> None:
             raise NeoError(f"{where}: patches[{i}].transform must be a rigid 4x4 matrix")
     for i, shade in enumerate(getattr(meta, "shades", None) or []):
         after = shade.get("after") if isinstance(shade, Mapping) else None
-        if not isinstance(after, int) or after < 0 or "box" not in shade:
-            raise NeoError(f"{where}: shades[{i}] needs a 'box' and an 'after' count >= 0")
+        ok = isinstance(after, int) and not isinstance(after, bool)
+        ok = ok and 0 <= int(after or 0) <= len(meta.patches)
+        if not ok or not {"box", "version"} <= set(shade):
+            raise NeoError(
+                f"{where}: shades[{i}] needs a 'box', a 'version' and an 'after' count within "
+                f"0..{len(meta.patches)} (the patches)"
+            )
         check_box_dicts([shade["box"]], f"{where}: shades[{i}].box")
     for i, move in enumerate(getattr(meta, "moves", None) or []):
         ok = isinstance(move, Mapping) and {"source", "target", "transform"} <= move.keys()

@@ -297,3 +297,24 @@ def test_a_shade_round_trips_with_its_scene(trained: Path, tmp_path: Path):
     with torch.no_grad():
         assert torch.allclose(again.field(pts, dirs)[1], scene.field(pts, dirs)[1])
         assert not torch.allclose(again.field(pts, dirs)[1], again.field.base(pts, dirs)[1])
+
+
+def test_a_malformed_shade_record_is_one_clear_error(trained: Path, tmp_path: Path):
+    import json
+
+    import pytest
+
+    from neoedit.errors import NeoError
+
+    scene = load_scene(trained)
+    slab = OrientedBox((0.02, 0.0, 0.0), (0.12, 0.12, 0.02), 0.0)
+    scene.patched().add_shade(slab, torch.full((4, 4), 0.8))
+    save_scene(tmp_path / "v", scene)
+    meta_file = tmp_path / "v" / "scene.json"
+    good = json.loads(meta_file.read_text())
+    for bad in ({"after": True}, {"after": 5}, {"after": -1}, {"version": None}):
+        record = {**good["shades"][0], **bad}
+        record = {k: v for k, v in record.items() if v is not None}
+        meta_file.write_text(json.dumps({**good, "shades": [record]}))
+        with pytest.raises(NeoError, match=r"shades\[0\]"):
+            load_scene(tmp_path / "v")

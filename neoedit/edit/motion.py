@@ -69,8 +69,8 @@ class MoveConfig:
     shadow_follows: bool = True
     """The shadow found at a source (``remove.shadow``) is laid down again around its
     target: a shade, a ratio map on the target's support (neoedit/fields/shade.py),
-    translated with the object. With ``carry`` only (a distilled target learns from a
-    teacher without it)."""
+    translated with the object. NEO's carried object only (``carry``, the patch student, not
+    ``preview``): a distilled target learns from a teacher without it."""
     student: str = "patch"
     """'patch': the student is a new patch of the field, initialised from the current
     weights, owning the source boxes with the support under them (its MLPs learn at

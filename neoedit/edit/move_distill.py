@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+from typing import cast
 
 import numpy as np
 import torch
@@ -24,6 +25,7 @@ from neoedit.edit.views import VirtualViewConfig, concat_cameras, virtual_camera
 from neoedit.fields.composed import ComposedField, MaskedField, TransformedField
 from neoedit.fields.patched import PatchedField, edit_region
 from neoedit.fields.radiance import Field, RadianceField
+from neoedit.fields.shade import Shade
 from neoedit.geometry import OrientedBox
 from neoedit.rendering.occupancy import OccupancyGrid, cells_in_boxes, refresh_grid
 from neoedit.scene import Scene
@@ -74,11 +76,12 @@ def base_field(field_: Field) -> RadianceField:
 
 
 def with_patch_regions(parent: Scene, regions: list[OrientedBox]) -> list[OrientedBox]:
-    """``regions`` and the regions of the parent's earlier patches: a whole-field student
-    bakes those patches in, so it is taught there too."""
+    """``regions`` and the regions of the parent's earlier patches and shades: a whole-field
+    student bakes them in, so it is taught there too."""
     if not isinstance(parent.field, PatchedField):
         return regions
-    return [*regions, *(b for region in parent.field.regions for b in region)]
+    shades = [s.box for s in cast(list[Shade], list(parent.field.shades))]
+    return [*regions, *(b for region in parent.field.regions for b in region), *shades]
 
 
 def distillation_grids(
@@ -141,14 +144,11 @@ def _students(
     patch_mode: bool,
     removed: PatchedField | None,
     carried: list[tuple[OrientedBox, np.ndarray]] | None = None,
-    shades: list[tuple[OrientedBox, np.ndarray]] | None = None,
 ) -> RadianceField | list[tuple[RadianceField, float]]:
     """What the distillation trains, with each part's MLP rate factor; sets ``child.field``
     for a patch student. ``removed`` (the parent's field with the removal's patch): keep
     that patch as the source part. ``carried`` (per target: its source box and motion):
-    the target parts are the parent's own weights under the motion, frozen, not students,
-    with the ``shades`` (slab, ratio map: the objects' shadows at their targets) laid on
-    what renders around them."""
+    the target parts are the parent's own weights under the motion, frozen, not students."""
     if carried is not None:
         pf = parent.field
         inits = [pf.renderer_inside(s) if isinstance(pf, PatchedField) else pf for s, _ in carried]
@@ -157,8 +157,6 @@ def _students(
         students = []
         if removed is None:  # the hole is distilled from the composed teacher
             students.append((patched.add_patch(source_regions), dcfg.mlp_lr_factor))
-        for slab, ratio in shades or []:  # before the objects: their own colours stay
-            patched.add_shade(slab, torch.as_tensor(ratio))
         for target, init, (_, motion) in zip(targets, inits, carried, strict=True):
             patched.add_carried([target], motion, init)
         return students
@@ -226,7 +224,7 @@ def distil_move(
         carry = cfg.carry and patch_mode
         carried = list(zip(sources, transforms, strict=True)) if carry else None
         students = _students(
-            parent, child, source_regions, targets, dcfg, patch_mode, keep, carried, shades
+            parent, child, source_regions, targets, dcfg, patch_mode, keep, carried
         )
     losses: dict[str, float] = {}
     with timings.stage("distill"):
@@ -236,6 +234,13 @@ def distil_move(
                 parent.meta.render, parent.background, dcfg,
                 view=child.field if patch_mode else None,
             )  # fmt: skip
+    if carried is not None and shades:
+        # after the distillation (the teacher has no shades: a student under one would learn
+        # to undo it), under the carried objects (their own colours stay)
+        patched = child.patched()
+        first_carried = len(patched.parts) - len(carried)
+        for slab, ratio in shades:
+            patched.add_shade(slab, torch.as_tensor(ratio), after=first_carried)
     with timings.stage("grid"):
         if isinstance(students, RadianceField):
             child.field = students

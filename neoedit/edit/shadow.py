@@ -103,7 +103,9 @@ class Shadow:
         takes the object. The light stays where it was: the map is translated with the
         object, not turned (exact for a yaw-symmetric object, an approximation for others)."""
         span = float(self.axis[-1] - self.axis[0])
-        foot = np.array([*self.box.center_m[:2], self.support_z_m, 1.0])
+        mid = (float(self.axis[0]) + float(self.axis[-1])) / 2  # the map's centre, box frame
+        centre = np.asarray(self.box.center_m[:2]) + self.box.rotation[:2, :2] @ [mid, mid]
+        foot = np.array([*centre, self.support_z_m, 1.0])
         x, y, z = (float(v) for v in (np.asarray(motion, dtype=np.float64) @ foot)[:3])
         slab = OrientedBox((x, y, z), (span, span, 2 * self.band_m), self.box.yaw_deg)
         return slab, self.ratio.astype(np.float32)
@@ -114,7 +116,8 @@ def find_shadow(
 ) -> Shadow | None:
     """The support cells around the footprint of ``box`` that the object darkens (its
     luminance, smoothed, at least ``cfg.darker`` below the ring's median, connected to the
-    footprint), or None when there are none (or too little support is seen to tell)."""
+    footprint), or None when there are none, too little support is seen to tell, or the
+    support's own pattern is stronger than a shadow (``cfg.max_texture``)."""
     size = float(max(box.size_m[0], box.size_m[1]))
     reach = cfg.reach * size
     half = float(max(box.half_extents[:2])) + reach + cfg.ring * size

@@ -53,11 +53,13 @@ class PatchedField(ComposedField):
             rgb = apply_shades(shades, points, rgb, self.owner)
         return sigma, rgb
 
-    def add_shade(self, box: OrientedBox, ratio: torch.Tensor) -> Shade:
+    def add_shade(self, box: OrientedBox, ratio: torch.Tensor, after: int | None = None) -> Shade:
         """Darken the colours in the slab ``box`` by the ratio map ``ratio`` (n, n) over its
-        x/y extent, for what the parts that exist now answer (parts added later, such as the
-        object carried to the target, are not darkened)."""
-        shade = Shade(box, ratio.to(self.aabb.device), after=len(self.parts))
+        x/y extent, for what the base and the parts with an index below ``after`` answer
+        (default: the parts that exist now; later ones, such as the object carried to the
+        target, are not darkened)."""
+        after = len(self.parts) if after is None else after
+        shade = Shade(box, ratio.to(self.aabb.device), after=after)
         self.shades.append(shade)
         return shade
 

@@ -93,6 +93,6 @@ def load_parts(
     for i, entry in enumerate(shades):
         ratio = tensors[f"shade{i}.ratio"]
         if i < len(patched.shades):
-            cast(Shade, patched.shades[i]).ratio.copy_(ratio)
+            cast(Shade, patched.shades[i]).ratio.copy_(ratio.float().clamp(0.0, 1.0))
         else:
             patched.shades.append(Shade(OrientedBox.from_dict(entry["box"]), ratio, entry["after"]))
