@@ -11,7 +11,7 @@ from torch import nn
 
 from neoedit.cameras import Cameras
 from neoedit.cameras.cameras import look_at
-from neoedit.edit.shadow import ShadowConfig, find_shadow, shadow_slab, shadow_slabs
+from neoedit.edit.shadow import ShadowConfig, find_shadow, find_shadows
 from neoedit.errors import NeoError
 from neoedit.eval.footprint import FootprintContrast, footprint_contrast
 from neoedit.geometry import OrientedBox
@@ -42,8 +42,10 @@ def test_a_shadow_beside_the_footprint_is_found_and_held_by_the_slab():
     def shadow(x, y):
         return (x > 0.0) & (x < 0.07) & (y.abs() < 0.03)
 
-    slab = shadow_slab(Table(shadow), OBJECT, ShadowConfig())
-    assert slab is not None and slab.yaw_deg == OBJECT.yaw_deg
+    found = find_shadow(Table(shadow), OBJECT, ShadowConfig())
+    assert found is not None
+    slab = found.slab
+    assert slab.yaw_deg == OBJECT.yaw_deg
     xs, ys = np.meshgrid(np.linspace(0.005, 0.065, 13), np.linspace(-0.025, 0.025, 11))
     above = 0.006  # just over the table, in the slab
     patch = np.stack([xs.ravel(), ys.ravel(), np.full(xs.size, above)], 1)
@@ -135,7 +137,7 @@ def test_no_shadow_is_looked_for_on_a_checkerboard():
 
 def test_no_shadow_no_slab_and_a_dark_spot_apart_is_not_a_shadow():
     assert (
-        shadow_slab(
+        find_shadow(
             Table(lambda x, y: torch.zeros_like(x, dtype=torch.bool)), OBJECT, ShadowConfig()
         )
         is None
@@ -144,9 +146,9 @@ def test_no_shadow_no_slab_and_a_dark_spot_apart_is_not_a_shadow():
     def apart(x, y):  # dark, but not touching the footprint
         return ((x - 0.09) ** 2 + y**2) < 0.01**2
 
-    assert shadow_slab(Table(apart), OBJECT, ShadowConfig()) is None
+    assert find_shadow(Table(apart), OBJECT, ShadowConfig()) is None
     off = ShadowConfig(enabled=False)
-    assert shadow_slabs(Table(lambda x, y: x > 0), [OBJECT], off) == []
+    assert find_shadows(Table(lambda x, y: x > 0), [OBJECT], off) == [None]
 
 
 @pytest.mark.parametrize(

@@ -3,7 +3,7 @@
 A removal's box holds the object and the support under its footprint; the darkening the
 object cast on the support *around* its footprint lies outside the box, so a removal left a
 ghost of the object on the table (56 % of removal_1's Out pixels are that table; RESULTS).
-:func:`shadow_slab` finds it in the field itself: rays over a grid around the footprint,
+:func:`find_shadow` finds it in the field itself: rays over a grid around the footprint,
 coming down from outside at the scan's elevation, render the support, and the cells darker
 than the support further out (blurred a little, of the support's hue, on a support not
 patterned more strongly than a shadow), connected to the footprint, are the shadow. The
@@ -198,22 +198,6 @@ def _slab(
         (float(hi[0] - lo[0]), float(hi[1] - lo[1]), cfg.band_m),
         box.yaw_deg,
     )
-
-
-def shadow_slab(
-    field: Field, box: OrientedBox, cfg: ShadowConfig, elevation_deg: float = 45.0
-) -> OrientedBox | None:
-    """The slab of :func:`find_shadow` (None when there is no shadow)."""
-    found = find_shadow(field, box, cfg, elevation_deg)
-    return None if found is None else found.slab
-
-
-def shadow_slabs(
-    field: Field, boxes: list[OrientedBox], cfg: ShadowConfig, cameras: Cameras | None = None
-) -> list[OrientedBox]:
-    """:func:`shadow_slab` of every box that casts one (none when ``cfg.enabled`` is off),
-    each support seen at the elevation the scan's ``cameras`` saw it from (45 deg without)."""
-    return [s.slab for s in find_shadows(field, boxes, cfg, cameras) if s is not None]
 
 
 def find_shadows(

@@ -19,7 +19,8 @@ from collections.abc import Callable
 import torch
 from torch import nn
 
-from neoedit.geometry import OrientedBox, points_in_box
+from neoedit.geometry import OrientedBox
+from neoedit.geometry.box import box_local
 
 
 class Shade(nn.Module):
@@ -37,15 +38,12 @@ class Shade(nn.Module):
         self.after = int(after)
         self.register_buffer("ratio", ratio.detach().float().clamp(0.0, 1.0).contiguous())
 
-    def ratio_at(self, points: torch.Tensor) -> torch.Tensor:
-        """(N,) the map's ratio under world points (N,3) inside the slab (bilinear)."""
-        rot = torch.as_tensor(self.box.rotation, dtype=points.dtype, device=points.device)
-        centre = torch.as_tensor(self.box.center_m, dtype=points.dtype, device=points.device)
-        half = torch.as_tensor(self.box.half_extents[:2], dtype=points.dtype, device=points.device)
-        local = ((points - centre) @ rot)[:, :2] / half  # [-1, 1] over the map
+    def ratio_at(self, local: torch.Tensor) -> torch.Tensor:
+        """(N,) the map's ratio (bilinear) under points (N,3) in the slab's frame."""
+        xy = local[:, :2] / local.new_tensor(self.box.half_extents[:2])  # [-1, 1] over the map
         # grid_sample reads x along the last axis (the map's columns: the box's y)
-        grid = local[:, [1, 0]].reshape(1, -1, 1, 2)
-        ratio = self.ratio.to(points)[None, None]
+        grid = xy[:, [1, 0]].reshape(1, -1, 1, 2)
+        ratio = self.ratio.to(local)[None, None]
         value = nn.functional.grid_sample(ratio, grid, align_corners=True, padding_mode="border")
         return value.reshape(-1)
 
@@ -60,12 +58,14 @@ def apply_shades(
     answering part (``owner(points)``: -1 for the base) is older than the shade."""
     factor = None
     for shade in shades:
-        idx = torch.nonzero(points_in_box(points, shade.box)).squeeze(1)
+        local = box_local(points, shade.box)
+        inside = (local.abs() <= local.new_tensor(shade.box.half_extents)).all(-1)
+        idx = torch.nonzero(inside).squeeze(1)
         if len(idx):
             idx = idx[owner(points[idx]) < shade.after]
         if not len(idx):
             continue
         if factor is None:
             factor = points.new_ones(len(points))
-        factor[idx] = factor[idx] * shade.ratio_at(points[idx])
+        factor[idx] = factor[idx] * shade.ratio_at(local[idx])
     return rgb if factor is None else rgb * factor[:, None].to(rgb)

@@ -191,11 +191,16 @@ def _polygon_area(poly: np.ndarray) -> float:
     return 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
 
 
+def box_local(points: torch.Tensor, box: OrientedBox) -> torch.Tensor:
+    """(N,3) world points (a tensor on any device) in the box's frame: its centre at the
+    origin, its axes the frame's. The tensor counterpart of :meth:`OrientedBox.world_to_local`."""
+    return (points - points.new_tensor(box.center_m)) @ points.new_tensor(box.rotation)
+
+
 def points_in_box(points: torch.Tensor, box: OrientedBox) -> torch.Tensor:
     """(N,) bool: which world points (N,3) (a tensor on any device) lie inside the oriented
     box (faces included). The tensor counterpart of :meth:`OrientedBox.contains`."""
-    local = (points - points.new_tensor(box.center_m)) @ points.new_tensor(box.rotation)
-    return (local.abs() <= points.new_tensor(box.half_extents)).all(-1)
+    return (box_local(points, box).abs() <= points.new_tensor(box.half_extents)).all(-1)
 
 
 def points_in_boxes(points: torch.Tensor, boxes: Sequence[OrientedBox]) -> torch.Tensor:
