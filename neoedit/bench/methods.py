@@ -27,6 +27,7 @@ import numpy as np
 from neoedit.bench.seal3d import Seal3dConfig, SealMove, SealRemove
 from neoedit.cameras.rays import CameraTensors
 from neoedit.data import SceneData, load_scene_data
+from neoedit.edit.language_update import LanguageUpdateConfig
 from neoedit.edit.pipeline import Edit, apply_edit
 from neoedit.edit.relocate import Motion, Move, MoveConfig, check_motions
 from neoedit.edit.remove import Remove, RemoveConfig
@@ -100,6 +101,14 @@ def _steps(n: int, scale: float) -> int:
     return max(int(round(n * scale)), 1) if n > 0 else 0
 
 
+def language_config(scale: float = 1.0) -> LanguageUpdateConfig:
+    """How the language field follows every edit: its distillation steps multiplied by
+    ``scale`` (a third of the small profile's edit time went there at full length)."""
+    cfg = LanguageUpdateConfig()
+    cfg.steps = _steps(cfg.steps, scale)
+    return cfg
+
+
 def remove_config(method: str, scale: float = 1.0) -> RemoveConfig:
     """'resample', 'suppress' (no inpainting) or 'neo'; ``scale`` multiplies the training
     steps (the small profile's budget)."""
@@ -115,6 +124,7 @@ def move_config(method: str, scale: float = 1.0) -> MoveConfig:
     base.remove.refine.steps = _steps(base.remove.refine.steps, scale)
     d = base.distill
     d.field_steps, d.render_steps = _steps(d.field_steps, scale), _steps(d.render_steps, scale)
+    base.language = language_config(scale)
     if method == "preview":
         return dataclasses.replace(base, preview=True)
     if method in ABLATIONS:
@@ -127,6 +137,7 @@ def seal3d_config(scale: float = 1.0) -> Seal3dConfig:
     cfg = Seal3dConfig()
     d = cfg.schedule
     d.field_steps, d.render_steps = _steps(d.field_steps, scale), _steps(d.render_steps, scale)
+    cfg.language = language_config(scale)
     return cfg
 
 
@@ -193,16 +204,18 @@ def removal_edit(
 ) -> Edit:
     """The typed edit of one removal method of Table I (run by :func:`apply_edit`)."""
     if method in ("resample", "suppress", "neo"):
-        return Remove([box], remove_config(method, inp.edit_scale), name)
+        language = language_config(inp.edit_scale)
+        return Remove([box], remove_config(method, inp.edit_scale), name, language=language)
     if method == "seal3d":
         return SealRemove([box], seal3d_config(inp.edit_scale), name)
     from neoedit.bench.nerfiller import NerfillerConfig, NerfillerRemove
 
     # NeRFiller retrains the whole field: the pre scan's own budget, edit_scale or not
+    # (its language update is scaled as every method's)
     cfg = NerfillerConfig(depth=method == "nerfiller", seed=inp.seed)
     if scan is None:
         raise NeoError("the NeRFiller-style baseline needs the pre scan's images")
-    return NerfillerRemove(scan, [box], cfg, name)
+    return NerfillerRemove(scan, [box], cfg, name, language=language_config(inp.edit_scale))
 
 
 def run_removal(method: str, inp: SceneInputs) -> tuple[dict[str, Any], np.ndarray]:

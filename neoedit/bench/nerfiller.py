@@ -30,7 +30,7 @@ from neoedit.data import SceneData
 from neoedit.data.sparse_depth import is_sparse
 from neoedit.edit.checks import check_edit_boxes
 from neoedit.edit.inpaint import Inpainter, inpaint_views, make_inpainter
-from neoedit.edit.language_update import LanguageEdit
+from neoedit.edit.language_update import LanguageEdit, LanguageUpdateConfig
 from neoedit.edit.pipeline import Prepared, Timings, apply_edit
 from neoedit.edit.refine import crop_window, render_crops
 from neoedit.edit.remove import RemoveConfig, working_boxes
@@ -86,6 +86,8 @@ class NerfillerRemove:
     cfg: NerfillerConfig = field(default_factory=NerfillerConfig)
     prompt: str | None = None
     inpainter: Inpainter | None = None
+    language: LanguageUpdateConfig | None = None
+    """How the language field follows the removal (None: the defaults, as after NEO's)."""
 
     def prepare(self, parent: Scene) -> Prepared:
         cfg, data = self.cfg, self.data
@@ -112,7 +114,7 @@ class NerfillerRemove:
             child.field, child.grid = fresh.field, fresh.grid
             _retrain(child, data, work, cfg, train_cfg, inpainter, timings)
 
-        return Prepared(record, run, LanguageEdit(source=work, targets=[]))
+        return Prepared(record, run, LanguageEdit(source=work, targets=[]), self.language)
 
 
 def nerfiller(

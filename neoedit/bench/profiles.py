@@ -39,7 +39,7 @@ class Budget:
     """Held-out views evaluated per scene (None: all of them)."""
     edit_scale: float = 1.0
     """Multiplies the training steps of every edit and baseline (NEO's patch, the
-    distillations): the small profile runs 30 % of them so the whole table fits the test
+    distillations, the language update after the edit): the small profile runs 30 % of them so the whole table fits the test
     suite; standard runs each method as configured."""
 
     def train_config(self, seed: int) -> TrainConfig:

@@ -25,7 +25,7 @@ from neoedit.cameras import Cameras
 from neoedit.edit.checks import check_edit_boxes
 from neoedit.edit.history import check_output
 from neoedit.edit.inpaint import Inpainter, make_inpainter
-from neoedit.edit.language_update import LanguageEdit
+from neoedit.edit.language_update import LanguageEdit, LanguageUpdateConfig
 from neoedit.edit.masks import grown_box, grown_box_clear_of
 from neoedit.edit.pipeline import Prepared, Timings, apply_edit
 from neoedit.edit.refine import RefineConfig, refine_removal
@@ -93,6 +93,8 @@ class Remove:
     """Overrides ``cfg.inpainter`` with any object of the :class:`Inpainter` protocol."""
     strips: list[Strip] = field(default_factory=list, repr=False)
     """Filled by the run: every inpainting round's virtual views (for the report)."""
+    language: LanguageUpdateConfig | None = None
+    """How the language field follows the removal (None: the defaults)."""
 
     def prepare(self, parent: Scene) -> Prepared:
         cfg = self.cfg
@@ -136,7 +138,7 @@ class Remove:
                 region = [edit_region(b, cfg.refine.below_m) for b in work]
                 refresh_grid(child.grid, child.field.density, cells_in_boxes(child.grid, region))
 
-        return Prepared(record, run, LanguageEdit(source=work, targets=[]))
+        return Prepared(record, run, LanguageEdit(source=work, targets=[]), self.language)
 
 
 def remove(
