@@ -58,3 +58,29 @@ def test_console_script_runs():
         [sys.executable, "-m", "neoedit", "--help"], capture_output=True, text=True
     )
     assert result.returncode == 0 and "sim" in result.stdout
+
+
+def test_long_work_without_a_terminal_logs_plain_progress_lines(monkeypatch, capsys):
+    """In a log file (no terminal) a long task prints a plain line on stderr every tenth of
+    the way, the last one at 100 %; a short one prints nothing; stdout stays clean."""
+    from neoedit.utils import progress
+
+    now = [0.0]
+    monkeypatch.setattr(progress.time, "monotonic", lambda: now[0])
+    bar = progress._ListenedProgress(get_time=lambda: now[0], transient=True)
+    with bar:
+        quick = bar.add_task("quick", total=4, status="")
+        for _ in range(4):
+            now[0] += 0.5  # 2 s in all: under LOG_AFTER_S
+            bar.advance(quick)
+        slow = bar.add_task("train", total=100, status="")
+        for step in range(100):
+            now[0] += 1.0
+            bar.update(slow, advance=1, status=f"PSNR {20 + step / 10:.1f} dB")
+    out, err = capsys.readouterr()
+    lines = err.strip().splitlines()
+    assert not any(line.startswith("quick") for line in lines)
+    assert lines[0].startswith("train 5/100 (5 %)") and "PSNR 20.4 dB" in lines[0]
+    assert lines[1].startswith("train 15/100 (15 %)")  # a tenth of the way later
+    assert lines[-1].startswith("train 100/100 (100 %) · 0:01:40 elapsed")
+    assert len(lines) == 11 and "━" not in err and "train" not in out

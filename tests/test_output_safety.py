@@ -368,3 +368,30 @@ def test_parse_errors_are_condensed_to_a_few_lines():
         assert lines[0] == "error: Unrecognized options: --stepz"
         assert lines[1] == "  did you mean: " + ", ".join(f"--a.b{i}.steps" for i in range(5))
         assert lines[2] == "  every option: neo move --help" and len(lines) == 3
+
+
+def test_a_suggested_option_of_another_command_is_named_with_it():
+    """tyro suggests similar options of every verb; one that belongs to another verb must
+    not read as an option of this one (``neo sim benchmark --scenes`` said "did you mean:
+    --scenes")."""
+    from neoedit.cli._parse import condense
+
+    rows = [
+        "Unrecognized or misplaced options: --scenes (applied to neo sim benchmark)",
+        "───",
+        "Perhaps you meant:",
+        "    --scenes [STR [STR ...]]",
+        "        Scenes to run. (default: )",
+        "        in neo bench --help",
+        "    --only [STR [STR ...]]",
+        "        Generate only these scenes. (default: )",
+        "        in neo sim benchmark --help",
+        "───",
+        "For full helptext, run neo --help",
+    ]
+    text = "\n".join(["╭─ Unrecognized options ─╮", *(f"│ {r} │" for r in rows), "╰──╯"])
+    lines = condense(text, "neo sim benchmark").splitlines()
+    assert lines[1] == "  did you mean: --only, --scenes (an option of neo bench)"
+    assert lines[2] == "  every option: neo sim benchmark --help"
+    # without a verb every verb's options are fair suggestions
+    assert condense(text, "neo").splitlines()[1] == "  did you mean: --scenes, --only"

@@ -14,6 +14,7 @@ import tyro
 
 MAX_SUGGESTIONS = 5
 _HELP = re.compile(r"(neo\b[\w .-]*?--help)")
+_OWNER = re.compile(r"^in (neo\b[\w .-]*?) --help$")
 _NOISE = re.compile(r" \(applied to [^)]*\)|Arguments are applied to the directly preceding.*$")
 GROUPS = ("sim", "import")
 """Verbs with verbs of their own (neo sim scene, neo import colmap)."""
@@ -86,10 +87,7 @@ def condense(text: str, verb: str = "neo") -> str:
     for section in sections[1:]:
         joined = " ".join(section)
         if section[0].startswith(("Perhaps you meant", "Arguments similar to")):
-            for row in section[1:]:
-                word = row.split()[0]
-                if word.startswith("-") and word not in suggestions:
-                    suggestions.append(word)
+            suggestions += [s for s in _suggested(section[1:], verb) if s not in suggestions]
         found = _HELP.search(joined)
         if found and "helptext" in joined:
             help_hint = found.group(1)
@@ -99,6 +97,23 @@ def condense(text: str, verb: str = "neo") -> str:
         help_hint = f"{verb} --help"
     lines.append(f"  every option: {help_hint}")
     return "\n".join(lines)
+
+
+def _suggested(rows: list[str], verb: str) -> list[str]:
+    """The options tyro suggests, each followed by the row naming the command it belongs
+    to ('in neo bench --help'); an option of another command than ``verb`` is named with
+    it ('--scenes (an option of neo bench)'), the options of ``verb`` come first."""
+    options: list[tuple[str, str | None]] = []
+    for row in rows:
+        word = row.split()[0]
+        if word.startswith("-"):
+            options.append((word, None))
+        owner = _OWNER.match(row)
+        if owner and options and options[-1][1] is None:
+            options[-1] = (options[-1][0], owner.group(1))
+    own = [w for w, cmd in options if cmd in (None, verb) or verb == "neo"]
+    other = [f"{w} (an option of {cmd})" for w, cmd in options if w not in own]
+    return [*own, *other]
 
 
 def parse(commands: Any, args: list[str], description: str) -> Any:
