@@ -96,3 +96,32 @@ def test_iou_matches_monte_carlo(yaw_a, yaw_b, dx, dz):
     union = (ia | ib).sum()
     expected = (ia & ib).sum() / union if union else 0.0
     assert box_iou_3d(a, b) == pytest.approx(expected, abs=0.01)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_core_clusters_equal_dbscans_core_points(seed):
+    """The query's clustering against scikit-learn's DBSCAN on blobs, a ring and noise:
+    the same core points, grouped into the same clusters (ids may differ)."""
+    from sklearn.cluster import DBSCAN
+
+    from neoedit.geometry.clusters import core_clusters
+
+    rng = np.random.default_rng(seed)
+    blobs = [rng.normal(c, 0.02, (150, 3)) for c in ((0, 0, 0), (0.2, 0, 0), (0, 0.25, 0.1))]
+    t = rng.uniform(0, 2 * np.pi, 200)
+    ring = np.stack([0.5 + 0.1 * np.cos(t), 0.1 * np.sin(t), np.zeros_like(t)], 1)
+    pts = np.concatenate([*blobs, ring, rng.uniform(-0.5, 0.8, (300, 3))])
+    eps, min_samples = 0.03, 5
+    labels, core = core_clusters(pts, eps, min_samples)
+    db = DBSCAN(eps=eps, min_samples=min_samples).fit(pts)
+    ref_core = np.zeros(len(pts), bool)
+    ref_core[db.core_sample_indices_] = True
+    assert np.array_equal(core, ref_core) and core.sum() > 500
+    assert (labels[~core] == -1).all() and (labels[core] >= 0).all()
+    ours, theirs = labels[core], db.labels_[core]
+    pairs = set(zip(ours.tolist(), theirs.tolist(), strict=True))
+    assert len(pairs) == len(set(ours.tolist())) == len(set(theirs.tolist())) >= 4
+    empty_labels, empty_core = core_clusters(np.zeros((0, 3)), eps, min_samples)
+    assert empty_labels.shape == (0,) and empty_core.shape == (0,)
+    lonely, _ = core_clusters(pts[:3] * 100, eps, min_samples)  # no point is core
+    assert (lonely == -1).all()

@@ -23,6 +23,7 @@ import torch
 from neoedit.cameras.cameras import Cameras
 from neoedit.errors import NeoError
 from neoedit.geometry.box import OrientedBox
+from neoedit.geometry.clusters import core_clusters
 from neoedit.geometry.plane import fit_plane
 from neoedit.language.relevancy import CANONICAL_PHRASES, relevancy
 from neoedit.language.text import TextEncoder
@@ -237,16 +238,11 @@ def localize(
     )
     if len(sel) < cfg.min_cluster_points:
         raise NoMatch(prompt, best, cfg.threshold, too_few)
-    from sklearn.cluster import DBSCAN  # lazy: half a second of imports
-
-    db = DBSCAN(eps=cfg.eps_m, min_samples=cfg.min_samples).fit(points_m[sel])
-    labels = db.labels_
+    labels, core = core_clusters(points_m[sel], cfg.eps_m, cfg.min_samples)
     if (labels >= 0).sum() == 0:
         raise NoMatch(prompt, best, cfg.threshold, too_few)
     # the box is fitted to the cluster's core points: sparse stragglers at its rim (floaters,
     # silhouette pixels whose depth hit the table behind) would inflate it
-    core = np.zeros(len(sel), bool)
-    core[db.core_sample_indices_] = True
     members = sel[(labels == best_cluster(labels, core, rel[sel], cfg.min_cluster_points)) & core]
     if len(members) < cfg.min_cluster_points:
         raise NoMatch(prompt, best, cfg.threshold, too_few)
