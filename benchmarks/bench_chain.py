@@ -94,8 +94,7 @@ def main() -> None:
         box = query_scene(scene, action.prompt or "", text).box
         child = apply_action(scene, action, [box], cfg)
         rec = child.meta.edits[-1]
-        for key in ("source_boxes", "target_boxes", "edit_boxes"):
-            edited += [OrientedBox.from_dict(b) for b in rec.get(key, [])]
+        edited += rec.boxes("source_boxes", "target_boxes", "edit_boxes")
         save_scene(root / f"step_{k}", child)
         nbytes = store.info(f"step_{k}").manifest["bytes"]
         steps.append(

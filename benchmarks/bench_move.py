@@ -124,7 +124,7 @@ def run_scene(name: str, args: argparse.Namespace, methods: list[str]) -> tuple[
         row = {"seconds": round(seconds, 1), **metrics}
         if method not in ("pre-edit", "oracle") and scene.language is not None:
             row["query"] = query_check(scene, action["object"], target, source)
-            row["timings"] = scene.meta.edits[-1].get("timings", {})
+            row["timings"] = scene.meta.edits[-1].timings
         result[method] = row
         if method in MAIN:
             rgb = scene.render_image(cams, view, post.height, post.width)["rgb"]

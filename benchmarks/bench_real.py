@@ -276,7 +276,7 @@ def _footprints(scene_dir: Path, removed_dir: Path) -> dict:
     from neoedit.scene import load_scene
 
     removed = load_scene(removed_dir)
-    box = OrientedBox.from_dict(removed.meta.edits[-1]["boxes"][0])
+    box = OrientedBox.from_dict(removed.meta.edits[-1].details["boxes"][0])
     try:
         return {
             "removed": removal_footprint(removed, box).to_dict(),

@@ -42,7 +42,7 @@ def run(name: str, data: Path, scenes_dir: Path, shadow: bool) -> dict:
     child = apply_edit(pre, Remove([truth], cfg, spec["actions"][0].get("object")))
     seconds = time.perf_counter() - t0
     m = evaluate(child, load_scene_data(data / name / "post"), "test", out_boxes=[truth])
-    slabs = child.meta.edits[-1].get("shadow_boxes", [])
+    slabs = child.meta.edits[-1].details.get("shadow_boxes", [])
     return {
         "out": round(m["out"]["psnr"], 2),
         "full": round(m["full"]["psnr"], 2),

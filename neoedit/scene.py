@@ -25,11 +25,11 @@ import uuid
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
 import torch
-from pydantic import TypeAdapter, ValidationError
+from pydantic import BeforeValidator, TypeAdapter, ValidationError
 from safetensors.torch import load_file, save_file
 
 from neoedit.cameras.rays import CameraTensors
@@ -44,6 +44,7 @@ from neoedit.fields.radiance import Field, RadianceField, RadianceFieldConfig
 from neoedit.fields.stored import field_tensors, load_parts, part_records, prefixed
 from neoedit.fields.suppressed import with_removals
 from neoedit.geometry import OrientedBox
+from neoedit.records import EditRecord
 from neoedit.rendering.occupancy import OccupancyGrid, OccupancyGridConfig
 from neoedit.rendering.renderer import RenderConfig, render_image
 from neoedit.scene_checks import check_scene_meta
@@ -110,13 +111,22 @@ class SceneMeta:
     """Shadows laid on the field by moves: ``{"box": slab, "after": n, "version": id}`` per
     shade, its ratio map stored with the weights; it darkens what the base and the parts
     with an index below ``n`` answer in its slab (:mod:`neoedit.fields.shade`)."""
-    edits: list[dict[str, Any]] = dataclasses.field(default_factory=list)
-    """Edit history from the original scan to this version (type, prompt, box, parameters,
-    parent version, seconds), oldest first."""
+    edits: list[Annotated[EditRecord, BeforeValidator(EditRecord.parse)]] = dataclasses.field(
+        default_factory=list
+    )
+    """Edit history from the original scan to this version, oldest first (stored as flat
+    JSON objects: :meth:`to_dict`)."""
     version_id: str = dataclasses.field(default_factory=lambda: uuid.uuid4().hex[:12])
     parent: str | None = None
     created: str = dataclasses.field(default_factory=lambda: time.strftime("%Y-%m-%dT%H:%M:%S"))
     format: str = FORMAT
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON object of scene.json (each edit record flat, as :class:`EditRecord`
+        stores it)."""
+        out = dataclasses.asdict(self)
+        out["edits"] = [r.to_dict() for r in self.edits]
+        return out
 
 
 @dataclass
@@ -225,7 +235,7 @@ def save_scene(
     if store is not None:
         if optimizer is not None:
             raise NeoError(f"{path}: training writes a plain scene folder, not a store version")
-        stored = store.write(path.name, groups, dataclasses.asdict(scene.meta), extras)
+        stored = store.write(path.name, groups, scene.meta.to_dict(), extras)
         _apply_groups(scene, stored, path)
         return
     with atomic_directory(path, overwrite=True, kind="scene") as tmp:
@@ -234,7 +244,7 @@ def save_scene(
             save_file(optimizer_tensors(scene.field, optimizer), str(tmp / "optimizer.safetensors"))
         if "language" in groups:
             save_file(groups["language"], str(tmp / "language.safetensors"))
-        atomic_write_json(tmp / "scene.json", dataclasses.asdict(scene.meta))
+        atomic_write_json(tmp / "scene.json", scene.meta.to_dict())
         if extras is not None:
             extras(tmp)
 

@@ -252,7 +252,7 @@ def test_remove_end_to_end(trained: Path, sim_root: Path, tmp_path: Path, capsys
     )
     p = load_scene(preview)
     assert p.meta.cut_boxes and p.meta.parent == parent.meta.version_id
-    assert p.meta.edits[-1]["type"] == "remove"
+    assert p.meta.edits[-1].type == "remove"
     # seen from the scan's cameras, the mug's footprint stood out from the table around it;
     # with the mug cut, the table under it shows
     from neoedit.eval.footprint import removal_footprint
@@ -263,7 +263,7 @@ def test_remove_end_to_end(trained: Path, sim_root: Path, tmp_path: Path, capsys
     result = json.loads((tmp_path / "preview.json").read_text())  # --json: the same facts
     assert result["version_id"] == p.meta.version_id and result["parent"] == p.meta.parent
     assert result["out"] == str(preview) and result["edit"]["type"] == "remove"
-    assert result["edit"]["boxes"] == p.meta.edits[-1]["boxes"]
+    assert result["edit"]["boxes"] == p.meta.edits[-1].details["boxes"]
     assert "seconds" in result["edit"] and "config" not in result["edit"]
     # an earlier result is replaced only with --overwrite; the box file never
     again = ["remove", str(trained), "--box", str(box_file), "--no-inpaint"]

@@ -135,9 +135,9 @@ def test_plan_writes_a_chain_every_verb_accepts(chain: Path, move_scene: Path, c
     assert "step 4 (move 'purple elephant')" in message and "the plan stopped" in message
     first, fine = load_scene(chain / "step_1"), load_scene(chain / "step_2")
     # the fine move: boxes overlap, the mug is whole at its new place, not doubled
-    src = OrientedBox.from_dict(fine.meta.edits[-1]["source_boxes"][0])
-    tgt = OrientedBox.from_dict(fine.meta.edits[-1]["target_boxes"][0])
-    assert OrientedBox.from_dict(fine.meta.edits[-1]["boxes"][0]).center_m[0] > 0.1
+    src = OrientedBox.from_dict(fine.meta.edits[-1].details["source_boxes"][0])
+    tgt = OrientedBox.from_dict(fine.meta.edits[-1].details["target_boxes"][0])
+    assert OrientedBox.from_dict(fine.meta.edits[-1].details["boxes"][0]).center_m[0] > 0.1
     around = _points_in(src.grown(0.03))  # holds both boxes ...
     # ... and the table top: only what stands 1 cm above the box's floor is the mug
     around = around[around[:, 2] > src.center_m[2] - src.size_m[2] / 2 + 0.01]
@@ -166,7 +166,7 @@ def test_restore_is_bit_identical_and_keeps_later_versions(chain: Path, sim_root
     store = SceneStore(chain)
     before = _tensors(load_scene(chain / "step_1"))
     # another edit into the store (from a store version), then undo to step_1
-    box = json.dumps(load_scene(chain / "step_1").meta.edits[-1]["target_boxes"][0])
+    box = json.dumps(load_scene(chain / "step_1").meta.edits[-1].details["target_boxes"][0])
     (chain.parent / "box.json").write_text(box)
     args = ["move", str(chain / "step_1"), "--box", str(chain.parent / "box.json")]
     assert (
@@ -374,9 +374,9 @@ def test_batch_move_of_two_objects_moves_both(move_scene: Path, sim_root: Path):
     child = move(parent, motions, cfg, "red mug; soccer ball")
     rec = child.meta.edits[-1]
     # one patch for both holes, and each object carried under its motion
-    assert len(rec["source_boxes"]) == 2 and len(child.field.patches) == 3
+    assert len(rec.details["source_boxes"]) == 2 and len(child.field.patches) == 3
     assert [t is None for t in child.field.part_transforms()] == [True, False, False]
-    for src, tgt in zip(rec["source_boxes"], rec["target_boxes"], strict=True):
+    for src, tgt in zip(rec.details["source_boxes"], rec.details["target_boxes"], strict=True):
         s, t = OrientedBox.from_dict(src), OrientedBox.from_dict(tgt)
         assert _mean_density(child, s) < 0.5 * _mean_density(parent, s)
         assert _mean_density(child, t) > 2 * _mean_density(parent, t)
@@ -410,10 +410,10 @@ def test_a_preview_plan_trains_nothing_and_each_step_sees_the_last(
         removed.meta.version_id,
     ]
     assert result["steps"][1]["parent"] == moved.meta.version_id
-    assert moved.meta.moves and moved.meta.edits[-1]["method"] == "preview"
+    assert moved.meta.moves and moved.meta.edits[-1].method == "preview"
     # step 2 queried the preview: the mug was found where step 1 put it
     target = OrientedBox.from_dict(moved.meta.moves[0]["target"])
-    found = OrientedBox.from_dict(removed.meta.edits[-1]["boxes"][0])
+    found = OrientedBox.from_dict(removed.meta.edits[-1].details["boxes"][0])
     assert np.linalg.norm(np.subtract(found.center_m, target.center_m)[:2]) < 0.03
     assert removed.meta.cut_boxes and removed.meta.moves  # both render-time, nothing trained
     for name in ("step_1", "step_2"):  # a preview stores no new field content
@@ -426,7 +426,7 @@ def test_a_whole_field_student_on_a_patched_version_saves_and_loads(chain: Path,
     version lists none (a stale list made it unloadable)."""
     parent = load_scene(chain / "step_1")  # a patched version
     assert isinstance(parent.field.patches, torch.nn.ModuleList) and len(parent.field.patches)
-    box = OrientedBox.from_dict(parent.meta.edits[-1]["target_boxes"][0])
+    box = OrientedBox.from_dict(parent.meta.edits[-1].details["target_boxes"][0])
     cfg = MoveConfig(student="field")
     cfg.remove.refine.steps, cfg.remove.refine.rounds, cfg.remove.views.turns = 30, 1, 1
     cfg.language.steps = 60

@@ -14,7 +14,7 @@ LAYERS = [
     ["cameras", "storage"],
     ["geometry"],
     ["fields", "data"],
-    ["rendering", "scene_checks"],
+    ["rendering", "scene_checks", "records"],
     ["scene"],
     ["grasp", "eval", "export"],
     ["viz"],

@@ -172,22 +172,24 @@ def test_move_end_to_end(move_scene: Path, sim_root: Path, tmp_path: Path):
     assert isinstance(moved.field, PatchedField) and len(moved.meta.patches) == 2
     for k, v in parent.field.state_dict().items():
         assert torch.equal(moved.field.base.state_dict()[k], v), k
-    assert moved.meta.parent == parent.meta.version_id and moved.meta.edits[-1]["type"] == "move"
+    assert moved.meta.parent == parent.meta.version_id and moved.meta.edits[-1].type == "move"
     # density left the edit's source box and appeared in its target box (the tiny scan's
     # query box is loose, so the edit's own boxes are checked, not the simulator's)
     record = moved.meta.edits[-1]
-    own_source = OrientedBox.from_dict(record["source_boxes"][0])
-    own_target = OrientedBox.from_dict(record["target_boxes"][0])
+    own_source = OrientedBox.from_dict(record.details["source_boxes"][0])
+    own_target = OrientedBox.from_dict(record.details["target_boxes"][0])
     assert _mean_density(parent, own_source) > 20 * _mean_density(moved, own_source)
     assert _mean_density(moved, own_target) > 20 * _mean_density(parent, own_target)
     # the shadow found at the source (if any) is laid around the target, under the object
     # carried there (which it never darkens)
-    assert len(moved.field.shades) == len(record["shade_boxes"]) == len(moved.meta.shades) > 0
+    assert (
+        len(moved.field.shades) == len(record.details["shade_boxes"]) == len(moved.meta.shades) > 0
+    )
     carried = [i for i, t in enumerate(moved.field.part_transforms()) if t is not None]
     assert carried and all(s.after <= min(carried) for s in moved.field.shades)
     # the target box now renders what the composite (the teacher without inpainting) shows
     # there, and the rest of the scene renders as before
-    motion = Motion(OrientedBox.from_dict(moved.meta.edits[-1]["boxes"][0]), transform)
+    motion = Motion(OrientedBox.from_dict(moved.meta.edits[-1].details["boxes"][0]), transform)
     preview = move(parent, [motion], MoveConfig(preview=True))
     data = load_scene_data(sim_root / "pick_place_1" / "pre")
     cams = CameraTensors(data.cameras)
@@ -196,7 +198,7 @@ def test_move_end_to_end(move_scene: Path, sim_root: Path, tmp_path: Path):
             s.render_image(cams, view, data.height, data.width)["rgb"]
             for s in (parent, moved, preview)
         )
-        moved_box = OrientedBox.from_dict(moved.meta.edits[-1]["target_boxes"][0])
+        moved_box = OrientedBox.from_dict(moved.meta.edits[-1].details["target_boxes"][0])
         into = torch.as_tensor(project_box_mask(data.cameras, view, moved_box))
         if into.sum() > 20:
             err_moved = float((rb - rp).abs()[into].mean())
@@ -241,7 +243,7 @@ def test_moved_version_is_self_contained_and_moves_again(
     args = ["--out", str(preview), "--preview", "--json", str(result_file)]
     assert main([*cmd, "0.1", "0.05", "0", "--yaw", "30", *args]) == 0
     p = load_scene(preview)
-    assert p.meta.moves and p.meta.edits[-1]["method"] == "preview"
+    assert p.meta.moves and p.meta.edits[-1].method == "preview"
     result = json.loads(result_file.read_text())
     assert result["version_id"] == p.meta.version_id and result["edit"]["type"] == "move"
     assert result["edit"]["target_boxes"] == [p.meta.moves[0]["target"]]
@@ -272,7 +274,7 @@ def test_moved_version_is_self_contained_and_moves_again(
     assert main([*cmd2, "-0.05", "0", "0", "--out", str(again), *FAST]) == 0
     a = load_scene(again)
     assert isinstance(a.field, PatchedField) and len(a.meta.patches) == 3 and not a.meta.moves
-    assert a.meta.parent == p.meta.version_id and "settle_s" in a.meta.edits[-1]["timings"]
+    assert a.meta.parent == p.meta.version_id and "settle_s" in a.meta.edits[-1].timings
 
 
 def test_move_refuses_bad_motions(move_scene: Path, sim_root: Path, tmp_path: Path, capsys):
@@ -513,12 +515,12 @@ def test_move_distils_both_regions_or_reuses_the_removal_patch(
     motion = Motion(found.box, np.asarray(action["transform_world"]))
     child = move(parent, [motion], _fast_move_config(reuse_removal_patch=reuse, carry=False))
     record = child.meta.edits[-1]
-    source = OrientedBox.from_dict(record["source_boxes"][0])
-    target = OrientedBox.from_dict(record["target_boxes"][0])
+    source = OrientedBox.from_dict(record.details["source_boxes"][0])
+    target = OrientedBox.from_dict(record.details["target_boxes"][0])
     assert isinstance(child.field, PatchedField) and len(child.field.parts) == 2
     # the source region: the source box and a slab for each shadow found around it
     source_regions, (target_region,) = child.field.regions
-    assert len(source_regions) == 1 + len(record["shadow_boxes"])
+    assert len(source_regions) == 1 + len(record.details["shadow_boxes"])
     assert source_regions[0].center_m[:2] == pytest.approx(source.center_m[:2], abs=1e-6)
     assert target_region.to_dict() == target.to_dict()
     ((n_students, boxes),) = calls
@@ -557,9 +559,9 @@ def test_the_seal3d_baseline_is_its_own_edit(move_scene: Path, sim_root: Path, t
     child, parent = load_scene(out), load_scene(move_scene)
     assert isinstance(child.field, RadianceField) and not isinstance(child.field, PatchedField)
     record = child.meta.edits[-1]
-    assert record["method"] == "seal3d" and record["shadow_boxes"] == []
-    assert record["config"]["schedule"]["render_steps"] == 60  # the baseline's own settings
-    assert {"teacher_s", "distill_s", "loss_render"} <= record["timings"].keys()
+    assert record.method == "seal3d" and record.details["shadow_boxes"] == []
+    assert record.details["config"]["schedule"]["render_steps"] == 60  # the baseline's own settings
+    assert {"teacher_s", "distill_s", "loss_render"} <= record.timings.keys()
     # the object left its place (the tiny parent holds as much density in the target's
     # empty space as the object has, so the target is not a test of this baseline here)
     assert _mean_density(parent, source) > 20 * _mean_density(child, source)
@@ -596,7 +598,7 @@ def test_the_python_facade_loads_moves_removes_renders_and_saves(move_scene: Pat
     out = neo.save(s3, tmp_path / "v3")
     again = neo.load(out)
     assert again.scene.meta.version_id == s3.scene.meta.version_id
-    assert [e["type"] for e in again.scene.meta.edits[-2:]] == ["move", "remove"]
+    assert [e.type for e in again.scene.meta.edits[-2:]] == ["move", "remove"]
     with pytest.raises(neo.NeoError, match="never overwrites|inside the input|holds the input"):
         neo.save(s3, move_scene, overwrite=True)  # never over the version it started from
     with pytest.raises(neo.NeoError, match="camera index"):
@@ -633,7 +635,7 @@ def test_a_carried_move_keeps_the_object_and_distils_only_the_hole(
     assert isinstance(child.field, PatchedField)
     source_t, target_t = child.field.part_transforms()
     assert source_t is None and np.allclose(target_t, transform)
-    target = OrientedBox.from_dict(child.meta.edits[-1]["target_boxes"][0])
+    target = OrientedBox.from_dict(child.meta.edits[-1].details["target_boxes"][0])
     assert [b.to_dict() for b in child.field.regions[-1]] == [target.to_dict()]
     # inside the target the child answers what the parent answered at T^-1 x
     pts = torch.as_tensor(

@@ -19,6 +19,7 @@ from neoedit.edit.points import box_points
 from neoedit.errors import NeoError
 from neoedit.eval.evaluate import evaluate
 from neoedit.geometry import OrientedBox
+from neoedit.records import EditRecord
 from neoedit.scene import load_scene
 
 STEPS = 250  # at 150 the depth variant still holds 1/3 of the mug's density
@@ -81,10 +82,10 @@ def test_parent_and_data_unchanged_and_child_recorded(removal):
     assert np.array_equal(data.depth_m, before["depth"])
     for depth, child in children.items():
         edit = child.meta.edits[-1]
-        assert edit["method"] == ("nerfiller" if depth else "nerfiller-no-depth")
-        assert edit["parent"] == parent.meta.version_id == child.meta.parent
-        assert OrientedBox.from_dict(edit["boxes"][0]).to_dict() == box.to_dict()
-        assert edit["edit_boxes"] and edit["seconds"] > 0
+        assert edit.method == ("nerfiller" if depth else "nerfiller-no-depth")
+        assert edit.parent == parent.meta.version_id == child.meta.parent
+        assert OrientedBox.from_dict(edit.details["boxes"][0]).to_dict() == box.to_dict()
+        assert edit.details["edit_boxes"] and edit.seconds > 0
         assert child.meta.step == STEPS and child.field is not parent.field
 
 
@@ -96,7 +97,7 @@ def test_only_the_depth_variant_has_a_depth_loss(removal):
 
 def test_edited_parent_or_missing_depth_is_refused(removal):
     parent, data, box, _, _ = removal
-    edited = new_version(parent, {"type": "remove"})
+    edited = new_version(parent, EditRecord("remove"))
     edited.meta.cut_boxes.append(box.to_dict())
     with pytest.raises(NeoError, match="start from an unedited version"):
         nerfiller(edited, data, [box], NerfillerConfig(steps=1))

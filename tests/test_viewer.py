@@ -330,7 +330,7 @@ def _commit(sc: Scenario) -> None:
     store = SceneStore(sc.store)
     assert store.names() == ["v0", "remove_1"] and store.current == "remove_1"
     assert viewer.state.selected == "remove_1" and viewer.state.pending is None
-    assert load_scene(sc.store / "remove_1").meta.edits[-1]["type"] == "remove"
+    assert load_scene(sc.store / "remove_1").meta.edits[-1].type == "remove"
     page.wait_for(
         lambda m: m["type"] == "GuiUpdateMessage" and "remove_1" in m["updates"].get("options", ()),
         mark,

@@ -38,6 +38,7 @@ from neoedit.errors import NeoError
 from neoedit.fields.radiance import RadianceField
 from neoedit.geometry import OrientedBox
 from neoedit.geometry.masks import masks_for_boxes
+from neoedit.records import EditRecord
 from neoedit.scene import Scene
 from neoedit.training.trainer import TrainConfig, Trainer, psnr
 from neoedit.utils.progress import make_progress
@@ -97,15 +98,14 @@ class NerfillerRemove:
         if inpainter is None:
             device = str(parent.field.aabb.device)
             inpainter = make_inpainter(cfg.inpainter, cfg.inpaint_path, cfg.inpaint_prompt, device)
-        record = {
-            "type": "remove",
-            "method": "nerfiller" if cfg.depth else "nerfiller-no-depth",
-            "prompt": self.prompt,
+        details = {
             "boxes": [b.to_dict() for b in self.boxes],
             "edit_boxes": [b.to_dict() for b in work],
             "inpaint": getattr(inpainter, "name", type(inpainter).__name__),
             "config": dataclasses.asdict(cfg),
         }
+        method = "nerfiller" if cfg.depth else "nerfiller-no-depth"
+        record = EditRecord("remove", self.prompt, method, details=details)
         steps = parent.meta.step if cfg.steps is None else cfg.steps
         train_cfg = _train_config(parent, data, cfg, steps)
 

@@ -44,6 +44,7 @@ from neoedit.fields.composed import ComposedField, EmptyField, MaskedField
 from neoedit.fields.patched import edit_region
 from neoedit.fields.radiance import Field, RadianceField
 from neoedit.geometry import OrientedBox
+from neoedit.records import EditRecord
 from neoedit.rendering.occupancy import OccupancyGrid
 from neoedit.scene import Scene
 from neoedit.utils.timings import Timings
@@ -142,14 +143,13 @@ class SealRemove:
             raise NeoError("nothing to remove: give a prompt or --box")
         check_edit_boxes(parent, self.boxes)
         sources = cfg.working_boxes(parent, self.boxes)
-        record = {
-            "type": "remove",
-            "prompt": self.prompt,
+        details = {
             "removal": "seal3d",
             "boxes": [b.to_dict() for b in self.boxes],
             "edit_boxes": [b.to_dict() for b in sources],
             "config": dataclasses.asdict(cfg),
         }
+        record = EditRecord("remove", self.prompt, "seal3d", details=details)
 
         def run(child: Scene, timings: Timings) -> None:
             start = settled_start(parent, child, DistillConfig(), timings)  # NEO's settling

@@ -81,7 +81,7 @@ class RemoveCommand:
         rec = child.meta.edits[-1]
         console.print(
             f"wrote {self.out} (version {child.meta.version_id}, parent {child.meta.parent}) in "
-            f"{rec['seconds']:.1f} s; pictures in {self.out / 'report'}"
+            f"{rec.seconds or 0:.1f} s; pictures in {self.out / 'report'}"
         )
 
 
@@ -123,7 +123,7 @@ def check_json_output(
 def edit_result(out: Path, child: Scene) -> dict:
     """What a script wants to know about a new version: where it is, its place in the
     history and its edit's record (boxes, method, seconds, timings; not the full config)."""
-    record = {k: v for k, v in child.meta.edits[-1].items() if k != "config"}
+    record = {k: v for k, v in child.meta.edits[-1].to_dict().items() if k != "config"}
     return {
         "out": str(out),
         "version_id": child.meta.version_id,
@@ -250,8 +250,8 @@ class MoveCommand:
         write_result(self.json, self.out, child)
         rec = child.meta.edits[-1]
         console.print(
-            f"wrote {self.out} ({rec['method']}, version {child.meta.version_id}, parent "
-            f"{child.meta.parent}) in {rec['seconds']:.1f} s; pictures in {self.out / 'report'}"
+            f"wrote {self.out} ({rec.method}, version {child.meta.version_id}, parent "
+            f"{child.meta.parent}) in {rec.seconds or 0:.1f} s; pictures in {self.out / 'report'}"
         )
 
     def motion(self) -> np.ndarray | tuple[np.ndarray, float]:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -15,6 +14,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from neoedit.errors import NeoError
+from neoedit.records import own_edit
 
 console = Console()
 
@@ -42,18 +42,12 @@ def _number(value: Any) -> float:
 def _row(name: str, meta: dict[str, Any], parent: str, size: int | None) -> list[str]:
     """One line of ``neo log``; a record with missing or malformed fields shows '?' there
     (the records are JSON a user can edit: the log must still list every version)."""
-    edits = meta.get("edits") or []
-    ok = isinstance(edits, list) and edits and isinstance(edits[-1], dict)
-    last = edits[-1] if ok else None
-    rec = last if last is not None and last.get("version") == meta.get("version_id") else None
+    rec = own_edit(meta)
     if rec is None:
         what, prompt, motion, secs = "train", "", "", _number(meta.get("train_seconds"))
     else:
-        what = str(rec.get("type", "?")) + (f" ({rec['method']})" if rec.get("method") else "")
-        if rec.get("type") == "remove" and not rec.get("inpaint"):
-            what += " (cut)"
-        prompt, motion = str(rec.get("prompt") or "box"), _motion_text(rec)
-        secs = _number(rec.get("seconds"))
+        what, prompt, motion = rec.label, rec.prompt or "box", _motion_text(rec.details)
+        secs = _number(rec.seconds)
     mb = "" if not isinstance(size, (int, float)) else f"{size / 1e6:.1f} MB"
     cells = [name, str(meta.get("version_id", "?")), str(parent), what, prompt, motion]
     return [escape(c) for c in cells] + [f"{secs:.0f} s", mb]
@@ -87,10 +81,9 @@ class LogCommand:
 
         meta = read_scene_meta(Path(self.scene))
         for rec in meta.edits:  # the lineage that led to this folder
-            rec = rec if isinstance(rec, dict) else {}
-            fake = {"edits": [rec], "version_id": rec.get("version", "?")}
-            table.add_row(*_row("", fake, str(rec.get("parent") or "-"), None))
-        table.add_row(*_row(str(self.scene), dataclasses.asdict(meta), meta.parent or "-", None))
+            fake = {"edits": [rec.to_dict()], "version_id": rec.version}
+            table.add_row(*_row("", fake, rec.parent or "-", None))
+        table.add_row(*_row(str(self.scene), meta.to_dict(), meta.parent or "-", None))
         console.print(table)
 
 

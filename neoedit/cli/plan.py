@@ -104,7 +104,7 @@ class PlanCommand:
                 save_scene(out, child, extras=report)
                 rec = child.meta.edits[-1]
                 console.print(
-                    f"step {k}: {escape(str(action.label))} -> {escape(str(out))} in {rec['seconds']:.1f} s"
+                    f"step {k}: {escape(str(action.label))} -> {escape(str(out))} in {rec.seconds or 0:.1f} s"
                 )
                 steps.append({"step": k, "action": action.label, **edit_result(out, child)})
                 columns.append(render_versions([child], views))

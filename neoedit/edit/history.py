@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import contextlib
 import copy
+import dataclasses
 import time
 import uuid
 from pathlib import Path
-from typing import Any
 
 from neoedit.errors import NeoError
+from neoedit.records import EditRecord
 from neoedit.scene import Scene
 from neoedit.storage import find_store, resolve_scene_dir
 from neoedit.storage.store import NAME_RE
@@ -48,7 +49,7 @@ def edit_lock(out: Path) -> contextlib.AbstractContextManager[None]:
     return store.lock() if store is not None else contextlib.nullcontext()
 
 
-def new_version(parent: Scene, record: dict[str, Any]) -> Scene:
+def new_version(parent: Scene, record: EditRecord) -> Scene:
     """A deep copy of ``parent`` as a new version: fresh id, parent link, the edit appended
     to the history. The parent object is left unchanged."""
     child = Scene(
@@ -62,5 +63,7 @@ def new_version(parent: Scene, record: dict[str, Any]) -> Scene:
     meta.parent = parent.meta.version_id
     meta.version_id = uuid.uuid4().hex[:12]
     meta.created = time.strftime("%Y-%m-%dT%H:%M:%S")
-    meta.edits.append({**record, "parent": parent.meta.version_id, "version": meta.version_id})
+    meta.edits.append(
+        dataclasses.replace(record, parent=parent.meta.version_id, version=meta.version_id)
+    )
     return child

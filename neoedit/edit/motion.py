@@ -17,6 +17,7 @@ from neoedit.edit.refine import RefineConfig
 from neoedit.edit.remove import RemoveConfig
 from neoedit.errors import NeoError
 from neoedit.geometry import OrientedBox, is_rigid
+from neoedit.records import EditRecord
 from neoedit.scene import Scene
 
 STUDENTS = ("patch", "field")
@@ -119,12 +120,9 @@ class MoveRegions:
         motions: list[Motion],
         shadows: list[OrientedBox],
         config: Any,
-    ) -> dict[str, Any]:
+    ) -> EditRecord:
         """The history entry of the move (``config``: the method's configuration)."""
-        return {
-            "type": "move",
-            "prompt": prompt,
-            "method": method,
+        details = {
             "boxes": [m.box.to_dict() for m in motions],
             "source_boxes": [b.to_dict() for b in self.sources],
             "shadow_boxes": [b.to_dict() for b in shadows],
@@ -132,6 +130,7 @@ class MoveRegions:
             "transforms": [t.round(9).tolist() for t in self.transforms],
             "config": dataclasses.asdict(config),
         }
+        return EditRecord("move", prompt, method, details=details)
 
     def language(self) -> LanguageEdit:
         """The query cloud loses the sources and gains the targets."""

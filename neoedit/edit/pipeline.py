@@ -21,10 +21,11 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Protocol
 
 from neoedit.edit.history import new_version
 from neoedit.edit.language_update import LanguageEdit, LanguageUpdateConfig, update_language
+from neoedit.records import EditRecord
 from neoedit.scene import Scene
 from neoedit.utils.timings import Timings
 
@@ -35,8 +36,8 @@ __all__ = ["Edit", "Prepared", "Timings", "apply_edit"]
 class Prepared:
     """What an edit resolves to on one parent scene, before any work is done."""
 
-    record: dict[str, Any]
-    """The history entry (type, prompt, boxes, method, configuration)."""
+    record: EditRecord
+    """The history entry (type, prompt, method; boxes and configuration in its details)."""
     run: Callable[[Scene, Timings], None]
     """The method's work on the new version (in place), timed into the Timings."""
     language: LanguageEdit
@@ -60,6 +61,7 @@ def apply_edit(parent: Scene, edit: Edit) -> Scene:
     prepared.run(child, timings)
     with timings.stage("language_total"):
         timings.merge(update_language(parent, child, prepared.language, prepared.language_cfg))
-    child.meta.edits[-1]["timings"] = dict(timings)
-    child.meta.edits[-1]["seconds"] = round(time.perf_counter() - t0, 2)
+    record = child.meta.edits[-1]
+    record.timings = dict(timings)
+    record.seconds = round(time.perf_counter() - t0, 2)
     return child

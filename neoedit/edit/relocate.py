@@ -64,7 +64,7 @@ class Move:
         shades = _shades(found, transforms, cfg)
         method = "preview" if cfg.preview else "neo"
         record = move.record(self.prompt, method, self.motions, shadows, cfg)
-        record["shade_boxes"] = [box.to_dict() for box, _ in shades]
+        record.details["shade_boxes"] = [box.to_dict() for box, _ in shades]
         if cfg.preview:
             _check_not_into_cuts(parent, targets)
 

@@ -35,6 +35,7 @@ from neoedit.edit.views import VirtualViewConfig, concat_cameras, virtual_camera
 from neoedit.errors import NeoError
 from neoedit.fields.patched import edit_region
 from neoedit.geometry import OrientedBox
+from neoedit.records import EditRecord
 from neoedit.rendering.occupancy import cells_in_boxes, refresh_grid
 from neoedit.scene import Scene, load_scene, save_scene
 from neoedit.utils.io import write_png
@@ -114,9 +115,7 @@ class Remove:
             shadows = [s.slab for s in found if s is not None]
             work += shadows
         inpaint = type(self.inpainter).__name__ if self.inpainter else cfg.inpainter
-        record = {
-            "type": "remove",
-            "prompt": self.prompt,
+        details = {
             "boxes": [b.to_dict() for b in self.boxes],
             "edit_boxes": [b.to_dict() for b in work],
             "shadow_boxes": [b.to_dict() for b in shadows],
@@ -124,6 +123,7 @@ class Remove:
             "inpaint": inpaint if cfg.inpaint else None,
             "config": dataclasses.asdict(cfg),
         }
+        record = EditRecord("remove", self.prompt, details=details)
 
         def run(child: Scene, timings: Timings) -> None:
             if not cfg.inpaint:

@@ -20,6 +20,7 @@ from neoedit.edit.pipeline import apply_edit
 from neoedit.edit.relocate import Motion, Move, MoveConfig
 from neoedit.edit.remove import Remove, RemoveConfig, write_report
 from neoedit.errors import NeoError
+from neoedit.records import own_edit
 from neoedit.scene import Scene, save_scene
 from neoedit.storage import SceneStore
 from neoedit.utils.progress import progress_listener
@@ -45,15 +46,8 @@ class VersionEntry:
 
 
 def _entry(name: str, meta: dict[str, Any], parent: str, current: bool) -> VersionEntry:
-    edits = meta.get("edits") or []
-    rec = edits[-1] if edits and edits[-1].get("version") == meta.get("version_id") else None
-    if rec is None:
-        edit, prompt = "train", ""
-    else:
-        edit = rec.get("type", "?") + (f" ({rec['method']})" if rec.get("method") else "")
-        if rec.get("type") == "remove" and not rec.get("inpaint"):
-            edit += " (cut)"
-        prompt = rec.get("prompt") or "box"
+    rec = own_edit(meta)
+    edit, prompt = ("train", "") if rec is None else (rec.label, rec.prompt or "box")
     return VersionEntry(name, str(meta.get("version_id", "?")), parent, edit, prompt, current)
 
 

@@ -60,15 +60,9 @@ def crop_camera(
 def edited_boxes(child: Scene) -> list[OrientedBox]:
     """The boxes of the child's own edit (removed, source, shadow and target boxes)."""
     edits = child.meta.edits
-    rec = edits[-1] if edits and edits[-1].get("version") == child.meta.version_id else {}
-    found = []
-    for key in ("boxes", "source_boxes", "shadow_boxes", "target_boxes"):
-        for b in rec.get(key) or []:
-            try:
-                found.append(OrientedBox.from_dict(b))
-            except (KeyError, TypeError, ValueError):
-                continue
-    return found
+    if not edits or edits[-1].version != child.meta.version_id:
+        return []
+    return edits[-1].boxes("boxes", "source_boxes", "shadow_boxes", "target_boxes")
 
 
 def report_views(parent: Scene, boxes: list[OrientedBox]) -> np.ndarray:
