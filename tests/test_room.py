@@ -115,6 +115,38 @@ def test_room_light_matches_a_brute_force_integral_in_front_of_and_behind_the_bo
     assert float(light.back_rgb[1].sub(env[1]).abs().max()) < 1e-5
 
 
+
+def test_rays_the_box_stops_skip_the_room_only_where_none_of_it_can_show():
+    """A camera inside the room's inner sphere sees no room in front of the box: on rays
+    the box stops, the room is not sampled (nothing to add); the other rays get exactly the
+    light they get without the hint, including opaque rays from a camera outside."""
+    room = ShellRoom(SMALL_ROOM, BOX)
+    inside = [0.25, 0.05, 0.02]  # within the inner sphere (radius: half the box diagonal)
+    origins = torch.tensor([inside, inside, [0.6, 0.05, 0.02], [0.6, 0.05, 0.02]])
+    directions = torch.nn.functional.normalize(
+        torch.tensor([[-1.0, 0.0, 0.0], [-1.0, 0.2, 0.1], [-1.0, 0.0, 0.0], [-1.0, 0.0, 1.5]]),
+        dim=-1,
+    )
+    opaque = torch.tensor([True, False, True, False])
+    calls = []
+    real = outside.room_light
+
+    def counting(room_, o, *args, **kwargs):
+        calls.append(len(o))
+        return real(room_, o, *args, **kwargs)
+
+    with torch.no_grad(), pytest.MonkeyPatch.context() as m:
+        m.setattr(outside, "room_light", counting)
+        full = outside_light(room, origins, directions, 0.05)
+        hinted = outside_light(room, origins, directions, 0.05, opaque=opaque)
+    assert calls == [4, 3]  # the stopped ray from inside is not sampled
+    seen = ~torch.tensor([True, False, False, False])
+    for a, b in ((hinted.front_rgb, full.front_rgb), (hinted.back_rgb, full.back_rgb)):
+        torch.testing.assert_close(a[seen], b[seen])
+    torch.testing.assert_close(hinted.front_trans[seen], full.front_trans[seen])
+    assert float(hinted.front_trans[0]) == 1.0 and float(full.front_trans[0]) == 1.0
+    assert hinted.back_rgb[0].abs().max() == 0 and hinted.front_rgb[0].abs().max() == 0
+
 def test_no_room_sample_lands_in_the_box():
     room = RoomField(SMALL_ROOM, BOX)
     gen = torch.Generator().manual_seed(0)

@@ -143,7 +143,8 @@ def march_render(
         alive = (trans[active] > stop_transmittance) & (count[active] > pos)
         active = active[alive]
     acc = 1.0 - trans
-    light = outside_light(background, rays.origins, rays.directions, near_m)
+    opaque = trans <= stop_transmittance  # a room behind them cannot show
+    light = outside_light(background, rays.origins, rays.directions, near_m, opaque=opaque)
     rgb = light.around(rgb + trans[:, None] * light.back_rgb)
     depth = depth / acc.clamp_min(1e-6)
     return {"rgb": rgb, "depth": depth, "depth_z": depth * rays.z_scale, "accumulation": acc}

@@ -180,9 +180,44 @@ def outside_light(
     near_m: float,
     jitter: bool = False,
     generator: torch.Generator | None = None,
+    opaque: torch.Tensor | None = None,
 ) -> OutsideLight:
     """What ``background`` adds around the box's segment of rays: a room's light in front of
-    and behind the box; for a colour or an environment map, the colour behind it."""
+    and behind the box; for a colour or an environment map, the colour behind it.
+
+    ``opaque`` (N,) bool, without gradients: rays the box stops (a renderer's transmittance
+    at its stopping threshold): what lies behind the box cannot show on them, so the room
+    is not sampled on those that also have no room in front of the box (a camera inside the
+    room's inner sphere, as in every capture walked around a table); their light from
+    behind is taken as black, an error of at most the threshold times the room's colour."""
     if isinstance(background, RoomField):
+        if opaque is not None and not torch.is_grad_enabled():
+            return _room_light_where_seen(background, origins, directions, near_m, opaque)
         return room_light(background, origins, directions, near_m, jitter, generator)
     return OutsideLight(0.0, 1.0, background_colors(background, origins, directions))
+
+
+def _room_light_where_seen(
+    room: RoomField,
+    origins: torch.Tensor,
+    directions: torch.Tensor,
+    near_m: float,
+    opaque: torch.Tensor,
+) -> OutsideLight:
+    """:func:`room_light` on the rays where some of the room can show (see
+    :func:`outside_light`); nothing on the others."""
+    d = directions / directions.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    intervals, _, _ = room_domain(room, origins, d, near_m)
+    seen = ~(opaque & (intervals.lengths[:, 0] <= 0.0))
+    if bool(seen.all()):
+        return room_light(room, origins, directions, near_m)
+    n = len(origins)
+    front_rgb = origins.new_zeros(n, 3)
+    front_trans = origins.new_ones(n)
+    back_rgb = origins.new_zeros(n, 3)
+    if bool(seen.any()):
+        part = room_light(room, origins[seen], directions[seen], near_m)
+        front_rgb[seen] = torch.as_tensor(part.front_rgb, dtype=front_rgb.dtype)
+        front_trans[seen] = torch.as_tensor(part.front_trans, dtype=front_trans.dtype)
+        back_rgb[seen] = part.back_rgb
+    return OutsideLight(front_rgb, front_trans, back_rgb)
