@@ -115,7 +115,6 @@ def test_room_light_matches_a_brute_force_integral_in_front_of_and_behind_the_bo
     assert float(light.back_rgb[1].sub(env[1]).abs().max()) < 1e-5
 
 
-
 def test_rays_the_box_stops_skip_the_room_only_where_none_of_it_can_show():
     """A camera inside the room's inner sphere sees no room in front of the box: on rays
     the box stops, the room is not sampled (nothing to add); the other rays get exactly the
@@ -146,6 +145,7 @@ def test_rays_the_box_stops_skip_the_room_only_where_none_of_it_can_show():
     torch.testing.assert_close(hinted.front_trans[seen], full.front_trans[seen])
     assert float(hinted.front_trans[0]) == 1.0 and float(full.front_trans[0]) == 1.0
     assert hinted.back_rgb[0].abs().max() == 0 and hinted.front_rgb[0].abs().max() == 0
+
 
 def test_no_room_sample_lands_in_the_box():
     room = RoomField(SMALL_ROOM, BOX)
