@@ -46,19 +46,27 @@ def test_plan_has_one_unit_per_applicable_method_and_dependencies_first():
 
 
 def test_keys_change_only_with_what_a_unit_depends_on(monkeypatch):
+    from neoedit.bench import profiles
     from neoedit.bench import units as units_mod
 
     posts = {"removal_1": ["post"]}
     plan = plan_units(["removal_1"], ["neo", "oracle"], posts, True)
     keys = unit_keys(plan, "small", 0, {})
-    small = units_mod.BUDGETS["small"]
+    small = profiles.BUDGETS["small"]
+    # --train-steps: new trainings and everything after them; the profile's own count
+    # given explicitly is the same run
+    longer = unit_keys(plan, "small", 0, {}, train_steps=small.train_steps + 100)
+    assert longer["sim/removal_1"] == keys["sim/removal_1"]
+    assert longer["train/removal_1/pre"] != keys["train/removal_1/pre"]
+    assert longer["removal_1/neo"] != keys["removal_1/neo"]
+    assert unit_keys(plan, "small", 0, {}, train_steps=small.train_steps) == keys
     # an evaluation setting: the method units again, the trainings stay cached
-    monkeypatch.setitem(units_mod.BUDGETS, "small", dataclasses.replace(small, eval_views=2))
+    monkeypatch.setitem(profiles.BUDGETS, "small", dataclasses.replace(small, eval_views=2))
     after = unit_keys(plan, "small", 0, {})
     assert after["train/removal_1/pre"] == keys["train/removal_1/pre"]
     assert after["removal_1/neo"] != keys["removal_1/neo"]
     # a training setting: the trainings and everything after them
-    monkeypatch.setitem(units_mod.BUDGETS, "small", dataclasses.replace(small, train_steps=7))
+    monkeypatch.setitem(profiles.BUDGETS, "small", dataclasses.replace(small, train_steps=7))
     after = unit_keys(plan, "small", 0, {})
     assert after["sim/removal_1"] == keys["sim/removal_1"]
     assert after["train/removal_1/post"] != keys["train/removal_1/post"]
@@ -123,6 +131,7 @@ def test_a_unit_never_replaces_a_folder_it_did_not_write(tmp_path: Path):
         ({"scenes": ("removal_9",)}, "unknown scene"),
         ({"methods": ("magic",)}, "unknown method"),
         ({"workers": 0}, "at least 1"),
+        ({"train_steps": 0}, "train-steps must be in"),
         ({"workers": 2, "ray_address": "auto"}, "not both"),
         ({"scenes": ("removal_1",), "methods": ("preview",)}, "no method"),
     ],

@@ -162,7 +162,8 @@ def write_report(ctx: Context, units: list[Unit], records: dict, summary: dict[s
         f"# neo bench — profile `{ctx.profile}`",
         "",
         f"{time.strftime('%Y-%m-%d %H:%M')} · {platform.machine()} {platform.system()} · "
-        f"seed {ctx.seed} · code {code_version()} · {summary['units']} units "
+        f"seed {ctx.seed} · {ctx.budget.train_steps} training steps per scan · "
+        f"code {code_version()} · {summary['units']} units "
         f"({summary['ran']} run now, {summary['cached']} cached) in {summary['seconds']} s",
         "",
         "NEO-Sim scenes, evaluated on the post scans' held-out views. The paper's figures "

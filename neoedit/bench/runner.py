@@ -53,6 +53,9 @@ class BenchConfig:
     """Units run at once: 1 = here, serially; N > 1 = a local Ray with N workers."""
     ray_address: str | None = None
     """Join this Ray cluster (e.g. 'auto' or 'ray://host:10001') instead."""
+    train_steps: int | None = None
+    """Steps of every pre scan and oracle training (default: the profile's: small 200,
+    standard 500); the tables then measure edits of fields trained that far."""
     threads: int | None = None
     """torch / numba threads per unit (default: ``--threads`` / ``NEO_THREADS`` when given,
     else the cores of the process; with Ray, the cores divided by the workers)."""
@@ -99,6 +102,8 @@ def prepare(cfg: BenchConfig) -> tuple[Context, list[Unit], dict[str, str]]:
     """Check the selection and plan the units, before any work."""
     if cfg.workers < 1:
         raise NeoError(f"--workers must be at least 1, got {cfg.workers}")
+    if cfg.train_steps is not None and not 1 <= cfg.train_steps <= 1_000_000:
+        raise NeoError(f"--train-steps must be in 1 .. 1000000, got {cfg.train_steps}")
     if cfg.workers > 1 and cfg.ray_address:
         raise NeoError("give --workers N (a local Ray) or --ray ADDRESS (a cluster), not both")
     if cfg.ray_address:
@@ -121,8 +126,9 @@ def prepare(cfg: BenchConfig) -> tuple[Context, list[Unit], dict[str, str]]:
     if threads is None and (cfg.workers > 1 or cfg.ray_address):
         threads = max(available_cores() // max(cfg.workers, 1), 1)
     data = None if cfg.data is None else cfg.data.resolve()  # Ray workers have another cwd
-    ctx = Context(cfg.out.resolve(), cfg.profile, cfg.seed, data, threads)
-    return ctx, units, unit_keys(units, cfg.profile, cfg.seed, ids)
+    out = cfg.out.resolve()
+    ctx = Context(out, cfg.profile, cfg.seed, data, threads, train_steps=cfg.train_steps)
+    return ctx, units, unit_keys(units, cfg.profile, cfg.seed, ids, cfg.train_steps)
 
 
 def run_bench(cfg: BenchConfig) -> dict[str, Any]:

@@ -25,7 +25,7 @@ from neoedit.bench.methods import (
     MOVE_METHODS,
     REMOVAL_METHODS,
 )
-from neoedit.bench.profiles import BUDGETS, Profile
+from neoedit.bench.profiles import Profile, budget_of
 from neoedit.errors import NeoError
 from neoedit.sim.spec import SceneSpec
 from neoedit.sim.suite import benchmark_scenes
@@ -70,12 +70,18 @@ def code_version(scope: str = "method") -> str:
     return h.hexdigest()[:16]
 
 
-def unit_keys(units: list[Unit], profile: Profile, seed: int, data_ids: dict[str, str]) -> dict:
+def unit_keys(
+    units: list[Unit],
+    profile: Profile,
+    seed: int,
+    data_ids: dict[str, str],
+    train_steps: int | None = None,
+) -> dict:
     """Cache key of every unit (units come in dependency order). ``data_ids``: scene -> a
     hash of its reused suite folder's files (none for simulated scenes: their sim unit's
-    key stands for them)."""
+    key stands for them); ``train_steps``: the profile's training steps replaced."""
     keys: dict[str, str] = {}
-    budget = BUDGETS[profile].to_dict()
+    budget = budget_of(profile, train_steps).to_dict()
     train_budget = {k: budget[k] for k in TRAIN_BUDGET}
     for u in units:
         scope = u.kind if u.kind in ("sim", "train") else "method"

@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from neoedit.bench.methods import RUNNERS, Refusal, SceneInputs
-from neoedit.bench.profiles import BUDGETS, Profile
+from neoedit.bench.profiles import Budget, Profile, budget_of
 from neoedit.bench.units import Unit, code_version, suite_specs
 from neoedit.errors import NeoError
 from neoedit.utils.io import atomic_write_json, mark_output, output_kind, write_png
@@ -41,6 +41,12 @@ class Context:
     """torch / numba threads of each unit (None: the cores the process may use)."""
     device: str = "auto"
     """Training device ('auto': CUDA when available)."""
+    train_steps: int | None = None
+    """Steps of every pre scan and oracle training (None: the profile's)."""
+
+    @property
+    def budget(self) -> Budget:
+        return budget_of(self.profile, self.train_steps)
 
     def unit_dir(self, unit_id: str) -> Path:
         return self.out / "units" / unit_id
@@ -127,10 +133,10 @@ def _execute(ctx: Context, unit: Unit, folder: Path) -> dict[str, Any]:
         data=kind_dir,
         pre=ctx.trained(unit.scene, "pre"),
         oracles={p: ctx.trained(unit.scene, p) for p in post_names},
-        eval_views=BUDGETS[ctx.profile].eval_views,
+        eval_views=ctx.budget.eval_views,
         seed=ctx.seed,
-        query=BUDGETS[ctx.profile].query,
-        edit_scale=BUDGETS[ctx.profile].edit_scale,
+        query=ctx.budget.query,
+        edit_scale=ctx.budget.edit_scale,
     )
     row, tile = RUNNERS[unit.kind](unit.params["method"], inputs)
     write_png(folder / "view.png", tile)
@@ -140,7 +146,7 @@ def _execute(ctx: Context, unit: Unit, folder: Path) -> dict[str, Any]:
 def _train(ctx: Context, unit: Unit, folder: Path) -> dict[str, Any]:
     from neoedit.training.trainer import train
 
-    budget = BUDGETS[ctx.profile]
+    budget = ctx.budget
     scene = train(
         ctx.scene_data(unit.scene) / unit.params["scan"],
         folder / "scene",

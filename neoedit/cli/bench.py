@@ -34,6 +34,9 @@ class BenchCommand:
     """Reuse this NEO-Sim suite (neo sim benchmark --out DATA, same profile) instead of
     simulating the scenes."""
     seed: int = 0
+    train_steps: int | None = None
+    """Steps of every pre scan and oracle training (default: the profile's, small 200,
+    standard 500; e.g. 1500 for fields near neo train's quality)."""
     workers: int = 1
     """1: run the units here, one after another; N > 1: a local Ray with N workers
     (pip install 'neoedit[cluster]')."""
@@ -51,6 +54,7 @@ class BenchCommand:
             methods=self.methods,
             data=self.data,
             seed=self.seed,
+            train_steps=self.train_steps,
             workers=self.workers,
             ray_address=self.ray,
         )
