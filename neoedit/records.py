@@ -59,8 +59,11 @@ class EditRecord:
             return v if isinstance(v, str) else None
 
         seconds = raw.get("seconds")
-        ok_seconds = isinstance(seconds, (int, float)) and math.isfinite(seconds)
+        ok_seconds = _number(seconds) and math.isfinite(float(seconds))  # type: ignore[arg-type]
         timings = raw.get("timings")
+        timings = (
+            {k: v for k, v in timings.items() if _number(v)} if isinstance(timings, dict) else {}
+        )
         return cls(
             type=text("type") or "?",
             prompt=text("prompt"),
@@ -68,7 +71,7 @@ class EditRecord:
             parent=text("parent"),
             version=text("version"),
             seconds=float(seconds) if ok_seconds else None,  # type: ignore[arg-type]
-            timings=dict(timings) if isinstance(timings, dict) else {},
+            timings=timings,
             details=rest,
         )
 
@@ -119,6 +122,10 @@ def own_edit(meta: Any) -> EditRecord | None:
         return None
     record = EditRecord.parse(edits[-1])
     return record if record.version == meta.get("version_id") else None
+
+
+def _number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
 _TYPED = ("type", "prompt", "method", "parent", "version", "seconds", "timings")

@@ -55,6 +55,11 @@ def test_hand_edited_or_partial_records_never_raise():
     assert EditRecord.parse("garbage").type == "?"
     rec = EditRecord.parse({"type": 3, "seconds": "slow", "timings": [1], "prompt": None})
     assert (rec.type, rec.seconds, rec.timings, rec.prompt) == ("?", None, {}, None)
+    odd = {**STORED, "timings": {"distill_s": "slow", "loss_render": 0.5}, "seconds": True}
+    raw = {"data_path": "d", "aabb_m": [[0, 0, 0], [1, 1, 1]], "background_rgb": [1, 1, 1]}
+    meta = TypeAdapter(SceneMeta).validate_python({**raw, "edits": [odd, "garbage"]})
+    assert meta.edits[0].timings == {"loss_render": 0.5} and meta.edits[0].seconds is None
+    assert meta.edits[1].type == "?"  # the scene still loads
     cut = EditRecord.parse({"type": "remove", "removal": "resample", "inpaint": None})
     assert cut.label == "remove (cut)"
     assert EditRecord.parse({"type": "remove", "inpaint": "fsr"}).label == "remove"
