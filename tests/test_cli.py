@@ -84,3 +84,54 @@ def test_long_work_without_a_terminal_logs_plain_progress_lines(monkeypatch, cap
     assert lines[1].startswith("train 15/100 (15 %)")  # a tenth of the way later
     assert lines[-1].startswith("train 100/100 (100 %) · 0:01:40 elapsed")
     assert len(lines) == 11 and "━" not in err and "train" not in out
+
+
+def test_each_verb_is_found_where_the_whole_cli_has_it():
+    """neoedit.cli.VERBS (``neo VERB`` imports only its own module) names the same command
+    class as the whole CLI's Union for every verb without verbs of its own."""
+    import importlib
+    from typing import get_args
+
+    from neoedit.cli import VERBS, Commands
+
+    whole = {}
+    for option in get_args(Commands):
+        cls, *markers = get_args(option) or (option,)
+        for marker in markers:
+            name = getattr(marker, "name", None)
+            if isinstance(name, str) and isinstance(cls, type):
+                whole[name] = cls
+    assert set(VERBS) == set(whole) - {"sim", "import"}
+    for verb, where in VERBS.items():
+        module, name = where.split(":")
+        assert getattr(importlib.import_module(module), name) is whole[verb], verb
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["query", "S", "red mug", "--views", "0", "--query.eps-m", "0.02"],
+        ["move", "S", "mug", "--translate", "0.1", "0", "0", "--yaw", "30", "--out", "O"],
+        ["train", "D", "--out", "O", "--max-steps", "7", "--field.room", "True"],
+        ["bench", "--out", "B", "--scenes", "removal_1", "--keep-versions"],
+        ["log", "S"],
+    ],
+)
+def test_one_verb_parses_as_the_whole_cli_does(args):
+    from neoedit.cli import Commands, _parse_one_verb
+    from neoedit.cli._parse import parse
+
+    fast = _parse_one_verb(args)
+    assert fast is not None and fast == parse(Commands, args, "")
+
+
+def test_a_verb_imports_only_its_own_module(tmp_path: Path):
+    """`neo log` does not import the edit methods, the baselines or the other verbs."""
+    code = (
+        "import sys\nfrom neoedit.cli import main\n"
+        f"main(['log', {str(tmp_path / 'none')!r}])\n"
+        "print(sorted(m for m in ('neoedit.cli.edit', 'neoedit.bench.seal3d', "
+        "'neoedit.edit.remove', 'neoedit.cli.sim', 'neoedit.cli.field') if m in sys.modules))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.stdout.strip().splitlines()[-1] == "[]", out.stdout + out.stderr
