@@ -4,7 +4,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.neoedit-installed
 DEMO_OUT ?= outputs/demo
 
-.PHONY: setup demo test lint bench bench-small bench-sim bench-field bench-language bench-remove bench-move clean
+.PHONY: setup demo test lint bench bench-small bench-sim bench-field bench-language bench-grasp clean
 
 setup: $(STAMP)
 
@@ -81,12 +81,10 @@ bench-field: bench-sim
 bench-language: bench-sim
 	$(PY) benchmarks/bench_language.py --data outputs/neosim_standard --scenes-dir outputs/bench_language
 
-bench-remove: bench-language
-	$(PY) benchmarks/bench_remove.py --data outputs/neosim_standard --scenes-dir outputs/bench_language --out outputs/bench_remove
-
-bench-move: bench-sim
-	$(PY) benchmarks/bench_move.py --data outputs/neosim_standard --scenes-dir outputs/bench_language --out outputs/bench_move --views 6
-	$(PY) benchmarks/bench_move.py --data outputs/neosim_standard --scenes-dir outputs/bench_language --out outputs/bench_move --views 6 --scenes pick_place_1 pick_place_2 pick_place_3 --methods no-virtual-views no-grid-inpaint no-mask-cond field-distill-only
+# grasps planned on NEO's predicted versions and executed by the simulated Panda
+bench-grasp: bench-sim
+	$(VENV)/bin/neo bench --profile standard --data outputs/neosim_standard --out outputs/bench_standard --scenes pick_place_1 pick_place_2 pick_place_3 pick_place_4 assembly --methods neo --keep-versions
+	$(PY) benchmarks/bench_grasp.py --bench outputs/bench_standard --data outputs/neosim_standard --out outputs/bench_grasp
 
 clean:
 	rm -rf $(VENV) outputs build *.egg-info

@@ -1,7 +1,7 @@
 """A 10-edit chain (small moves and removals, each found by a query on the current edited
 version) written into one scene store: storage, render time and drift outside the edits.
 
-    python benchmarks/bench_chain.py --scene outputs/bench_assembly/pre --data outputs/neosim_asm/assembly/pre --out outputs/bench_chain
+    python benchmarks/bench_chain.py --scene outputs/bench_standard/units/train/assembly/pre/scene --data outputs/neosim_standard/assembly/pre --out outputs/bench_chain
 
 Figures (issue targets in brackets): total bytes of the store's 11 versions against one
 trained scene (field + language, the files a version needs) [<= 3x]; render time of version
@@ -60,8 +60,13 @@ def render_seconds(path: Path, data, views: list[int], runs: int = 2) -> float:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--scene", type=Path, default=Path("outputs/bench_assembly/pre"))
-    parser.add_argument("--data", type=Path, default=Path("outputs/neosim_asm/assembly/pre"))
+    parser.add_argument(
+        "--scene",
+        type=Path,
+        default=Path("outputs/bench_standard/units/train/assembly/pre/scene"),
+        help="the assembly pre scan trained with language (neo bench --scenes assembly, or neo train)",
+    )
+    parser.add_argument("--data", type=Path, default=Path("outputs/neosim_standard/assembly/pre"))
     parser.add_argument("--out", type=Path, default=Path("outputs/bench_chain"))
     parser.add_argument("--student", default="patch", choices=["patch", "field"])
     parser.add_argument("--views", type=int, default=6)

@@ -1,7 +1,10 @@
 """Predict, then act: grasps planned on NEO versions, executed by the simulated Panda, and
 the executed outcome compared with the predicted version.
 
-    python benchmarks/bench_grasp.py --out outputs/bench_grasp
+    neo bench --profile standard --data outputs/neosim_standard --out outputs/bench_standard \
+        --scenes pick_place_1 pick_place_2 pick_place_3 pick_place_4 assembly \
+        --methods neo --keep-versions
+    python benchmarks/bench_grasp.py --bench outputs/bench_standard --out outputs/bench_grasp
 
 Per object (NEO-Sim pick_place_1-4 and the 4 assembly steps): the object is found by name on
 the version *before* the move (for assembly steps 2-4 an edited version), grasps are planned
@@ -17,9 +20,8 @@ tuned): picked, held, shaken and put back down where they were. The same sampler
 simulator's geometry (the convex parts each object collides with + the table slab) is the
 upper bound row ("truth geometry").
 
-Its inputs come from bench_move.py (--methods neo) and bench_assembly.py (--methods neo);
-give those runs ``--figure`` paths under their ``--out`` so that they leave the committed
-figures of the full runs alone.
+Its inputs come from a ``neo bench`` run that kept its versions (the command above): the
+trained pre scans, NEO's moved versions and the assembly's scene store.
 """
 
 from __future__ import annotations
@@ -37,6 +39,7 @@ import numpy as np
 import torch
 from scipy.spatial import Delaunay
 
+from neoedit.bench.folder import RunFolder
 from neoedit.cameras.rays import CameraTensors
 from neoedit.data import load_scene_data
 from neoedit.errors import NeoError
@@ -239,16 +242,16 @@ def main() -> None:
         help="try the planner's top 5 in its order (no kinematic check of the arm's reach)",
     )
     parser.add_argument(
-        "--moves",
+        "--bench",
         type=Path,
-        default=Path("outputs/bench_move"),
-        help="bench_move.py's output: the NEO-moved version of each scene (SCENE/neo)",
+        default=Path("outputs/bench_standard"),
+        help="a neo bench run with --keep-versions: pre scans, NEO's moves, the assembly store",
     )
     parser.add_argument(
-        "--store",
+        "--data",
         type=Path,
-        default=Path("outputs/bench_assembly/neo_store"),
-        help="bench_assembly.py's NEO scene store (step_0 .. step_4)",
+        default=None,
+        help="the NEO-Sim suite that run used (its --data; default: the scenes it simulated)",
     )
     parser.add_argument(
         "--figure",
@@ -262,33 +265,36 @@ def main() -> None:
         parser.error("--candidates must be >= 1")
     print("command: python " + " ".join(shlex.quote(a) for a in sys.argv))
     print(f"machine: {platform.machine()}, {platform.system()}, {time.strftime('%Y-%m-%d %H:%M')}")
+    bench = RunFolder(args.bench, args.data)
+    # every input exists before the first plan (a missing one is one clear error, not a crash
+    # after minutes)
+    try:
+        moves = {name: bench.kept(name, "neo") for name in args.scenes}
+        store = bench.kept("assembly", "neo")
+    except NeoError as e:
+        parser.error(str(e))
     args.out.mkdir(parents=True, exist_ok=True)
     results = {}
     for name in args.scenes:
-        before = load_scene(Path("outputs/bench_language") / f"{name}_pre")
-        predicted = load_scene(args.moves / name / "neo")
-        results[name] = run_object(
-            name, Path("outputs/neosim_standard") / name, 1, before, predicted, args
-        )
+        before = load_scene(bench.trained(name, "pre"))
+        predicted = load_scene(moves[name])
+        results[name] = run_object(name, bench.scene_data(name), 1, before, predicted, args)
     heldout = []
     for name in args.scenes:
-        scene_dir = Path("outputs/neosim_standard") / name
+        scene_dir = bench.scene_data(name)
         meta = json.loads((scene_dir / "scene.json").read_text())
         if "panda" not in meta["spec"]["setup"]["robot_urdf"]:  # KUKA: no gripper
             continue
-        before = load_scene(Path("outputs/bench_language") / f"{name}_pre")
+        before = load_scene(bench.trained(name, "pre"))
         moved = meta["actions"][0]["object"]
         for obj in [o["name"] for o in meta["spec"]["objects"] if o["name"] != moved]:
             heldout.append({"scene": name, **put_back(scene_dir, obj, before, args)})
-    store = args.store
     for k in range(1, 5):
         if not (store / f"step_{k}").is_dir():
             break
         before, predicted = load_scene(store / f"step_{k - 1}"), load_scene(store / f"step_{k}")
         name = f"assembly_step_{k}"
-        results[name] = run_object(
-            name, Path("outputs/neosim_asm/assembly"), k, before, predicted, args
-        )
+        results[name] = run_object(name, bench.scene_data("assembly"), k, before, predicted, args)
     rows = [r["neo"].pop("figure") for r in results.values() if "figure" in r.get("neo", {})]
     if rows:  # one row per object: grasps tried | predicted | executed
         width = max(r.shape[1] for r in rows)

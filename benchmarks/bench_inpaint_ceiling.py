@@ -1,13 +1,13 @@
 """How much of the gap to the oracle is the 2-D inpainter's? (a diagnostic, not a method)
 
-    python benchmarks/bench_inpaint_ceiling.py --scenes removal_1 removal_2
+    python benchmarks/bench_inpaint_ceiling.py --bench outputs/bench_standard --data outputs/neosim_standard --scenes removal_1 removal_2
 
 Runs `neo remove`'s default pipeline twice per scene with the same box: once with the
 default inpainter, once with a *perfect* one that returns what the oracle field (trained
 on the post scan, which saw the table under the object) renders in the same virtual-view
 crops. The second Out-PSNR is the ceiling of the rest of the pipeline (virtual views,
-visibility, patch training, refinement) with ideal 2-D inpainting. Needs bench_remove.py's
-outputs (pre scenes, query boxes, oracle fields).
+visibility, patch training, refinement) with ideal 2-D inpainting. Reads a ``neo bench``
+run with the scenes' ``neo`` and ``oracle`` units (pre scenes, oracle fields, their Out PSNR).
 """
 
 from __future__ import annotations
@@ -20,14 +20,18 @@ from pathlib import Path
 
 import numpy as np
 
+from neoedit.bench.folder import RunFolder
+from neoedit.bench.methods import found_box
 from neoedit.data import load_scene_data
 from neoedit.edit.inpaint import tile_2x2
 from neoedit.edit.refine import crop_window, render_crops
 from neoedit.edit.remove import RemoveConfig, remove_object, working_boxes
 from neoedit.edit.views import virtual_cameras
+from neoedit.errors import NeoError
 from neoedit.eval.evaluate import evaluate
 from neoedit.geometry import OrientedBox
 from neoedit.geometry.masks import project_box_mask
+from neoedit.language.localize import QueryConfig
 from neoedit.scene import load_scene
 
 
@@ -58,9 +62,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("--data", type=Path, default=Path("outputs/neosim_standard"))
-    parser.add_argument("--scenes-dir", type=Path, default=Path("outputs/bench_language"))
-    parser.add_argument("--bench", type=Path, default=Path("outputs/bench_remove"))
+    parser.add_argument(
+        "--data", type=Path, default=None, help="the suite of the bench run (its --data)"
+    )
+    parser.add_argument("--bench", type=Path, default=Path("outputs/bench_standard"))
+    parser.add_argument("--out", type=Path, default=Path("outputs/bench_inpaint_ceiling"))
     parser.add_argument("--scenes", nargs="+", default=["removal_1", "removal_2"])
     parser.add_argument(
         "--image-scale", type=float, default=0.5, help="virtual-view resolution (default 0.5)"
@@ -73,26 +79,32 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=120, help="patch training steps")
     args = parser.parse_args()
     print("command: python " + " ".join(shlex.quote(a) for a in sys.argv))
-    results = json.loads((args.bench / "results.json").read_text())
+    bench = RunFolder(args.bench, args.data)
+    try:
+        figures = {s: (bench.result(s, "neo"), bench.result(s, "oracle")) for s in args.scenes}
+    except NeoError as e:
+        parser.error(str(e))
     rows = []
     for name in args.scenes:
-        r = results[name]
-        box, truth = OrientedBox.from_dict(r["query_box"]), OrientedBox.from_dict(r["truth_box"])
-        pre_dir, oracle_dir = args.scenes_dir / f"{name}_pre", args.bench / name / "oracle"
+        action = json.loads((bench.scene_data(name) / "scene.json").read_text())["actions"][0]
+        truth = OrientedBox.from_dict(action["source_box"])
+        pre_dir, oracle_dir = bench.trained(name, "pre"), bench.trained(name, "post")
+        box = found_box(load_scene(pre_dir), action["object"], QueryConfig())
         cfg = RemoveConfig()
         cfg.views.image_scale = args.image_scale
         cfg.refine.inpaint_unseen_only = not args.inpaint_all
         cfg.refine.steps = args.steps
         replay = ReplayInpainter(oracle_composites(pre_dir, oracle_dir, box, cfg))
         out = (
-            args.bench
+            args.out
             / name
             / f"neo_perfect_inpainting_{args.image_scale:g}{'_all' if args.inpaint_all else ''}_{args.steps}"
         )
-        remove_object(pre_dir, out, [box], cfg, r["object"], overwrite=True, inpainter=replay)
-        post = load_scene_data(args.data / name / "post")
+        remove_object(pre_dir, out, [box], cfg, action["object"], overwrite=True, inpainter=replay)
+        post = load_scene_data(bench.scene_data(name) / "post")
         m = evaluate(load_scene(out), post, "test", out_boxes=[truth])
-        rows.append((name, r["neo"]["out"]["psnr"], m["out"]["psnr"], r["oracle"]["out"]["psnr"]))
+        neo, oracle = (f["out"]["psnr"] for f in figures[name])
+        rows.append((name, neo, m["out"]["psnr"], oracle))
         print(
             f"{name}: Out-PSNR NEO {rows[-1][1]:.2f}, perfect inpainting {rows[-1][2]:.2f}, oracle {rows[-1][3]:.2f}",
             flush=True,

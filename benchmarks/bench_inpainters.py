@@ -3,7 +3,7 @@
     python benchmarks/bench_inpainters.py --scenes removal_1 removal_2
 
 Uses the pre scenes of bench_language.py and the post scans' held-out views, like
-bench_remove.py; only the inpainter changes.
+neo bench's Table I; only the inpainter changes.
 """
 
 from __future__ import annotations

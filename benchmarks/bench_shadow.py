@@ -8,7 +8,7 @@ the shadow search off and with it on (the defaults). Each version is evaluated o
 scan's held-out views: PSNR over the removed object's projected box ("Out") and over the
 image ("Full"), the shadow slabs found and the edit's time. Run it with another checkout on
 PYTHONPATH to compare two versions of the search (it uses only ``Remove`` and
-``RemoveConfig.shadow.enabled``). The moves' side is ``bench_move.py --methods neo
+``RemoveConfig.shadow.enabled``). The moves' side is ``neo bench --methods neo
 no-shadow-follow no-shadow``.
 """
 

@@ -37,7 +37,8 @@ from neoedit.geometry import OrientedBox
 from neoedit.geometry.box import box_iou_3d
 from neoedit.language.localize import NoMatch, QueryConfig, query_scene
 from neoedit.language.text import load_text_encoder
-from neoedit.scene import Scene, load_scene
+from neoedit.scene import Scene, load_scene, save_scene
+from neoedit.storage import SceneStore
 
 REMOVAL_METHODS = (
     "pre-edit",
@@ -167,6 +168,9 @@ class SceneInputs:
     query: QueryConfig = dataclasses.field(default_factory=QueryConfig)
     edit_scale: float = 1.0
     """Multiplies the training steps of every edit (see :class:`~neoedit.bench.profiles.Budget`)."""
+    keep: Path | None = None
+    """Where to save the edited version (the assembly: a scene store of its chain, step_0 the
+    pre scene); None: the version is evaluated and dropped."""
 
 
 class Refusal(NeoError):
@@ -175,6 +179,7 @@ class Refusal(NeoError):
 
 
 def found_box(pre: Scene, name: str, cfg: QueryConfig) -> OrientedBox:
+    """The box ``neo query`` finds for ``name`` (a Refusal when it finds nothing)."""
     text = load_text_encoder(pre.meta.language.text)  # type: ignore[union-attr]
     try:
         return query_scene(pre, name, text, cfg).box
@@ -270,8 +275,21 @@ def _run_action(
             t0 = time.perf_counter()
             scene = timed()
             row["seconds"] = round(time.perf_counter() - t0, 1)
+            if moved:
+                row["query_after_iou"] = _found_iou(scene, action["object"], targets[0], inp)
+            if inp.keep is not None:
+                save_scene(inp.keep, scene)
     row.update(evaluate(scene, post, "test", [source], targets, max_views=inp.eval_views))
     return row, render_view(scene, post)
+
+
+def _found_iou(scene: Scene, name: str, truth: OrientedBox, inp: SceneInputs) -> float:
+    """IoU with ``truth`` of the box the object's name finds on an edited version (0 when
+    nothing is found): does the language field follow the object to its new place?"""
+    try:
+        return round(box_iou_3d(found_box(scene, name, inp.query), truth), 3)
+    except Refusal:
+        return 0.0
 
 
 def run_assembly(method: str, inp: SceneInputs) -> tuple[dict[str, Any], np.ndarray]:
@@ -279,6 +297,10 @@ def run_assembly(method: str, inp: SceneInputs) -> tuple[dict[str, Any], np.ndar
     scan's own field) -> ({"steps": rows}, a tile per step side by side)."""
     actions = json.loads((inp.data / "scene.json").read_text())["actions"]
     chain = None if method == "oracle" else load_scene(_need(inp.pre))
+    store = None
+    if chain is not None and inp.keep is not None:
+        store = SceneStore.create(inp.keep)
+        save_scene(store.root / "step_0", chain)
     rows: list[dict[str, Any]] = []
     tiles = []
     for k, action in enumerate(actions, 1):
@@ -301,6 +323,9 @@ def run_assembly(method: str, inp: SceneInputs) -> tuple[dict[str, Any], np.ndar
             chain = apply_edit(chain, move_edit(method, [motion], inp.edit_scale, action["object"]))
             row["seconds"] = round(time.perf_counter() - t0, 1)
             current = chain
+            if store is not None:
+                save_scene(store.root / f"step_{k}", chain)
+                row["store_mb"] = round(store.size_bytes() / 1e6, 1)
         row.update(evaluate(current, post, "test", [source], [target], max_views=inp.eval_views))
         rows.append(row)
         tiles.append(render_view(current, post))

@@ -2,7 +2,7 @@
 
 ``small`` is sized for the test suite (tiny hash grid, 64x48 scans, a few hundred steps);
 ``standard`` is the configuration of the recorded benchmarks (``neo train`` defaults, 500
-steps, as bench_remove.py / bench_move.py used).
+steps unless ``--train-steps`` says otherwise).
 """
 
 from __future__ import annotations

@@ -66,6 +66,9 @@ def metric_table(
     head = ["method", "n"]
     head += [f"{r.title()} {NAMES[m]}" for m, _ in METRICS for r in regions]
     head += ["Rest PSNR", "time [s]", "query IoU"]
+    after = any("query_after_iou" in r for m in methods for r in _results(records, units, kind, m))
+    if after:  # moves: the name queried on the edited version, against the true target box
+        head.append("query IoU after")
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for method in methods:
         rows = _results(records, units, kind, method)
@@ -76,8 +79,9 @@ def metric_table(
         cells.append(_fmt(_mean(rows, "rest", "psnr"), 2))
         secs = [r["seconds"] for r in rows if r.get("seconds") is not None]
         cells.append(_fmt(float(np.mean(secs)) if secs else None, 1))
-        ious = [r["query_iou"] for r in rows if "query_iou" in r]
-        cells.append(_fmt(float(np.mean(ious)) if ious else None, 2))
+        for key in ("query_iou", "query_after_iou") if after else ("query_iou",):
+            ious = [r[key] for r in rows if key in r]
+            cells.append(_fmt(float(np.mean(ious)) if ious else None, 2))
         lines.append("| " + " | ".join(cells) + " |")
     return lines if len(lines) > 2 else ["*(no scene of this table was in the run)*"]
 
@@ -204,8 +208,10 @@ def write_report(ctx: Context, units: list[Unit], records: dict, summary: dict[s
         "",
         "Time: edit wall time of the method (the oracle's and the pre scan's: training time). "
         "Query IoU: the box `neo query` found for the object on the pre scene (for the "
-        "assembly: on the current version) against the true box. Grasp success is measured "
-        "by benchmarks/bench_grasp.py, not by neo bench.",
+        "assembly: on the current version) against the true box; query IoU after (moves): the "
+        "same name queried on the edited version, against the true target box. Grasp success "
+        "is measured by benchmarks/bench_grasp.py (`--bench` this folder, a run with "
+        "`--keep-versions`), not by neo bench.",
         "",
         "## Figures (first held-out view of the post scan)",
         "",

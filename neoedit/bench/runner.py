@@ -56,6 +56,10 @@ class BenchConfig:
     train_steps: int | None = None
     """Steps of every pre scan and oracle training (default: the profile's: small 200,
     standard 500); the tables then measure edits of fields trained that far."""
+    keep_versions: bool = False
+    """Save every edited version (units/<scene>/<method>/scene; the assembly's chain as a
+    scene store, units/assembly/<method>/store) for the grasp benchmark, the viewer or
+    neo eval; a scene is tens of MB at the standard profile."""
     threads: int | None = None
     """torch / numba threads per unit (default: ``--threads`` / ``NEO_THREADS`` when given,
     else the cores of the process; with Ray, the cores divided by the workers)."""
@@ -127,7 +131,15 @@ def prepare(cfg: BenchConfig) -> tuple[Context, list[Unit], dict[str, str]]:
         threads = max(available_cores() // max(cfg.workers, 1), 1)
     data = None if cfg.data is None else cfg.data.resolve()  # Ray workers have another cwd
     out = cfg.out.resolve()
-    ctx = Context(out, cfg.profile, cfg.seed, data, threads, train_steps=cfg.train_steps)
+    ctx = Context(
+        out,
+        cfg.profile,
+        cfg.seed,
+        data,
+        threads,
+        train_steps=cfg.train_steps,
+        keep_versions=cfg.keep_versions,
+    )
     return ctx, units, unit_keys(units, cfg.profile, cfg.seed, ids, cfg.train_steps)
 
 

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from neoedit.bench.folder import RunFolder
 from neoedit.bench.methods import RUNNERS, Refusal, SceneInputs
 from neoedit.bench.profiles import Budget, Profile, budget_of
 from neoedit.bench.units import Unit, code_version, suite_specs
@@ -43,31 +44,54 @@ class Context:
     """Training device ('auto': CUDA when available)."""
     train_steps: int | None = None
     """Steps of every pre scan and oracle training (None: the profile's)."""
+    keep_versions: bool = False
+    """Save each method's edited version in its unit folder (``scene``; the assembly: a
+    scene store ``store``)."""
 
     @property
     def budget(self) -> Budget:
         return budget_of(self.profile, self.train_steps)
 
+    @property
+    def folder(self) -> RunFolder:
+        return RunFolder(self.out, self.data)
+
     def unit_dir(self, unit_id: str) -> Path:
-        return self.out / "units" / unit_id
+        return self.folder.unit_dir(unit_id)
 
     def scene_data(self, scene: str) -> Path:
-        if self.data is not None:
-            return self.data / scene
-        return self.unit_dir(f"sim/{scene}") / "scene"
+        return self.folder.scene_data(scene)
 
     def trained(self, scene: str, scan: str) -> Path:
-        return self.unit_dir(f"train/{scene}/{scan}") / "scene"
+        return self.folder.trained(scene, scan)
+
+
+def kept_version(ctx: Context, unit: Unit) -> Path | None:
+    """Where ``unit`` saves its edited version when the run keeps them (None: it has none
+    to keep — simulations, trainings, the pre-edit field and the oracle, which are scenes
+    of the ``train`` units already)."""
+    if not ctx.keep_versions or unit.kind not in RUNNERS:
+        return None
+    method = unit.params["method"]
+    if method in ("pre-edit", "oracle"):
+        return None
+    return ctx.folder.version(unit.scene, method)
 
 
 def cached(ctx: Context, unit: Unit, key: str) -> dict[str, Any] | None:
-    """The unit's record when it finished with this key (else None)."""
+    """The unit's record when it finished with this key (else None); a finished edit whose
+    version a ``keep_versions`` run wants and the unit did not keep is run again."""
     path = ctx.unit_dir(unit.id) / UNIT_FILE
     try:
         record = json.loads(path.read_text())
     except (OSError, ValueError):
         return None
-    return record if isinstance(record, dict) and record.get("key") == key else None
+    if not isinstance(record, dict) or record.get("key") != key:
+        return None
+    kept = kept_version(ctx, unit)
+    if kept is not None and "result" in record and not kept.exists():
+        return None
+    return record
 
 
 def run_unit(ctx: Context, unit: Unit, key: str) -> dict[str, Any]:
@@ -137,6 +161,7 @@ def _execute(ctx: Context, unit: Unit, folder: Path) -> dict[str, Any]:
         seed=ctx.seed,
         query=ctx.budget.query,
         edit_scale=ctx.budget.edit_scale,
+        keep=kept_version(ctx, unit),
     )
     row, tile = RUNNERS[unit.kind](unit.params["method"], inputs)
     write_png(folder / "view.png", tile)
