@@ -62,7 +62,8 @@ from neoedit.sim.spec import scene_spec_from_dict
 from neoedit.sim.world import SimWorld
 from neoedit.utils.io import write_png
 from neoedit.viz.boxes import draw_box
-from neoedit.viz.grasps import draw_grasps, facing_view
+from neoedit.viz.grasps import draw_grasps
+from neoedit.viz.zoom import facing_view
 
 
 def truth_density(scene_dir: Path, step: int):  # type: ignore[no-untyped-def]
@@ -270,9 +271,11 @@ def main() -> None:
     # after minutes)
     try:
         moves = {name: bench.kept(name, "neo") for name in args.scenes}
-        store = bench.kept("assembly", "neo")
     except NeoError as e:
         parser.error(str(e))
+    store = bench.version("assembly", "neo")
+    if not store.is_dir():
+        print(f"no assembly chain in {args.bench} ({store}): its four steps are left out")
     args.out.mkdir(parents=True, exist_ok=True)
     results = {}
     for name in args.scenes:

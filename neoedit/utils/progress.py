@@ -11,6 +11,7 @@ import time
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any, TypeVar
 
+from rich import get_console
 from rich.progress import (
     BarColumn,
     MofNCompleteColumn,
@@ -40,8 +41,10 @@ class _ListenedProgress(Progress):
     how far its tasks are, and writes plain progress lines when there is no terminal."""
 
     def __init__(self, *columns: Any, **kwargs: Any) -> None:
+        self._log = not kwargs.get("disable", False) and not get_console().is_terminal
+        if self._log:  # rich would print its last frame into the log or pipe (stdout)
+            kwargs["disable"] = True
         super().__init__(*columns, **kwargs)
-        self._log = not self.disable and not self.console.is_terminal
         self._logged: dict[TaskID, tuple[float, float]] = {}  # task -> (time, fraction)
 
     def add_task(self, description: str, *args: Any, **kwargs: Any) -> TaskID:
