@@ -37,6 +37,9 @@ class BenchCommand:
     train_steps: int | None = None
     """Steps of every pre scan and oracle training (default: the profile's, small 200,
     standard 500; e.g. 1500 for fields near neo train's quality)."""
+    keep_versions: bool = False
+    """Save every edited version in its unit folder (units/SCENE/METHOD/scene; the assembly:
+    a scene store) to open with neo view / neo eval or benchmarks/bench_grasp.py."""
     workers: int = 1
     """1: run the units here, one after another; N > 1: a local Ray with N workers
     (pip install 'neoedit[cluster]')."""
@@ -55,6 +58,7 @@ class BenchCommand:
             data=self.data,
             seed=self.seed,
             train_steps=self.train_steps,
+            keep_versions=self.keep_versions,
             workers=self.workers,
             ray_address=self.ray,
         )
