@@ -543,3 +543,29 @@ def test_a_forward_facing_llff_capture_imports_and_trains(tmp_path):
     flat = np.mean([psnr(np.broadcast_to(t.reshape(-1, 3).mean(0), t.shape), t) for t in truth])
     # measured: 26.9 dB held out, 18.2 dB for the flat-colour guess
     assert held_out > flat + 5.0, (held_out, flat)
+
+
+@pytest.mark.parametrize(("meet", "expected"), [(0.1, 0.3), (0.8, 0.8), (3.0, 1.5)])
+def test_a_forward_facing_look_centre_lies_where_the_photos_see_something(meet, expected):
+    """Nearly parallel optical axes of a forward-facing capture meet wherever the hand's toe-in
+    puts them (spinnerf_1's: a third of the way to the nearest thing seen): the look centre
+    (and so the scale and the scene box) is moved along the view into the depth range of the
+    LLFF bounds, and kept where it lies when it is inside it."""
+    from neoedit.cameras.cameras import look_at
+    from neoedit.data.capture import Capture
+    from neoedit.data.orient import look_centre
+
+    target = np.array([0.0, meet, 0.0])
+    eyes = [np.array([x, 0.0, z]) for x in (-0.04, 0.0, 0.04) for z in (-0.03, 0.0, 0.03)]
+    c2w = np.stack([look_at(e, target) for e in eyes])
+    capture = Capture(
+        source=Path("cap"),
+        names=[f"{i}.png" for i in range(len(eyes))],
+        image_dir=Path("cap"),
+        camera_to_world=c2w,
+        lenses=[],
+        bounds=np.tile([0.3, 1.5], (len(eyes), 1)),
+    )
+    centre = look_centre(capture)
+    assert abs(centre[0]) < 1e-6 and abs(centre[2]) < 1e-6  # straight ahead of the cameras
+    assert centre[1] == pytest.approx(expected, abs=1e-3)

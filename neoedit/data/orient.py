@@ -89,11 +89,21 @@ def look_centre(capture: Capture) -> np.ndarray:
     proj = np.eye(3)[None] - dirs[:, :, None] * dirs[:, None, :]
     a = proj.sum(0)
     b = (proj @ origins[:, :, None]).sum(0)[:, 0]
+    ahead = dirs.mean(0) / max(float(np.linalg.norm(dirs.mean(0))), 1e-12)
     if np.linalg.cond(a) < 1e6:
         point = np.linalg.solve(a, b)
-        if (((point - origins) * dirs).sum(1) > 0).mean() >= 0.9:
-            return point
-    ahead = dirs.mean(0) / max(float(np.linalg.norm(dirs.mean(0))), 1e-12)
+        depth = ((point - origins) * dirs).sum(1)
+        if (depth > 0).mean() >= 0.9:
+            if capture.bounds is None:
+                return point
+            # nearly parallel axes (a forward-facing capture) can meet closer than anything
+            # the photos see, or beyond it: the point is then moved along the view to the
+            # nearest (farthest) depth of the scene's content (its LLFF bounds)
+            near, far = np.median(capture.bounds, axis=0)
+            median = float(np.median(depth))
+            if near <= median <= far:
+                return point
+            return origins.mean(0) + ahead * float(np.clip(median, near, far))
     if capture.bounds is not None:
         depth = float(np.median(capture.bounds.mean(1)))
     elif len(capture.points):
