@@ -306,4 +306,4 @@ def test_kept_versions_are_the_evaluated_scenes(small_run, tmp_path: Path):
     # follows the object is asserted in test_move.py; the standard profile measures it)
     assert 0.0 <= folder.result("pick_place_1", "preview")["query_after_iou"] <= 1.0
     report = (tmp_path / "run" / "REPORT.md").read_text()
-    assert "query IoU after" in report
+    assert "query IoU after" in report and "Every edited version is kept" in report

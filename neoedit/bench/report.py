@@ -173,6 +173,15 @@ def write_report(ctx: Context, units: list[Unit], records: dict, summary: dict[s
         "NEO-Sim scenes, evaluated on the post scans' held-out views. The paper's figures "
         "(real scans, trained on a GPU) are beside each table for orientation only: the "
         "scenes, budgets and hardware differ.",
+        *(
+            [
+                "",
+                "Every edited version is kept: `units/<scene>/<method>/scene` (the assembly's "
+                "chain: the scene store `units/assembly/<method>/store`); open one with `neo view`.",
+            ]
+            if ctx.keep_versions
+            else []
+        ),
         "",
         "## Table I — object removal (mean over the removal scenes)",
         "",
