@@ -83,8 +83,8 @@ bench-language: bench-sim
 
 # grasps planned on NEO's predicted versions and executed by the simulated Panda
 bench-grasp: bench-sim
-	$(VENV)/bin/neo bench --profile standard --data outputs/neosim_standard --out outputs/bench_standard --scenes pick_place_1 pick_place_2 pick_place_3 pick_place_4 assembly --methods neo --keep-versions
-	$(PY) benchmarks/bench_grasp.py --bench outputs/bench_standard --data outputs/neosim_standard --out outputs/bench_grasp
+	$(VENV)/bin/neo bench --profile standard --data outputs/neosim_standard --out outputs/bench_grasp_run --scenes pick_place_1 pick_place_2 pick_place_3 pick_place_4 assembly --methods neo --keep-versions
+	$(PY) benchmarks/bench_grasp.py --bench outputs/bench_grasp_run --data outputs/neosim_standard --out outputs/bench_grasp
 
 clean:
 	rm -rf $(VENV) outputs build *.egg-info

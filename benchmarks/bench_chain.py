@@ -66,7 +66,13 @@ def main() -> None:
         default=Path("outputs/bench_standard/units/train/assembly/pre/scene"),
         help="the assembly pre scan trained with language (neo bench --scenes assembly, or neo train)",
     )
-    parser.add_argument("--data", type=Path, default=Path("outputs/neosim_standard/assembly/pre"))
+    parser.add_argument(
+        "--data",
+        type=Path,
+        default=Path("outputs/bench_standard/units/sim/assembly/scene/pre"),
+        help="the assembly's pre scan (the bench's own simulation; with neo bench --data D: "
+        "D/assembly/pre)",
+    )
     parser.add_argument("--out", type=Path, default=Path("outputs/bench_chain"))
     parser.add_argument("--student", default="patch", choices=["patch", "field"])
     parser.add_argument("--views", type=int, default=6)

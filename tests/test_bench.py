@@ -305,5 +305,9 @@ def test_kept_versions_are_the_evaluated_scenes(small_run, tmp_path: Path):
     # (the 64x48 fields' language is too coarse to find the mug at its new place: that it
     # follows the object is asserted in test_move.py; the standard profile measures it)
     assert 0.0 <= folder.result("pick_place_1", "preview")["query_after_iou"] <= 1.0
+    # a unit the last run did not touch is still read (from its own unit.json)
+    assert folder.result("removal_1", "neo")["out"]["psnr"] > 10
+    with pytest.raises(NeoError, match="re-run your neo bench command"):
+        folder.result("removal_1", "no-such-method")
     report = (tmp_path / "run" / "REPORT.md").read_text()
     assert "query IoU after" in report and "Every edited version is kept" in report

@@ -1,5 +1,6 @@
 """Where things are in a ``neo bench`` run folder, for the runner and for tools that read a
-finished run (benchmarks/bench_grasp.py, bench_inpaint_ceiling.py, neo view).
+finished run (benchmarks/bench_grasp.py, bench_inpaint_ceiling.py); a kept version is an
+ordinary scene (or store) that ``neo view`` / ``neo render`` open.
 
     OUT/REPORT.md, OUT/results.json, OUT/figures/<scene>.png
     OUT/units/sim/<scene>/scene               a simulated scene (runs without --data)
@@ -44,14 +45,15 @@ class RunFolder:
         return self.unit_dir(f"{scene}/{method}") / ("store" if scene == "assembly" else "scene")
 
     def result(self, scene: str, method: str) -> dict[str, Any]:
-        """The figures of one finished unit (results.json), or a clear error."""
+        """The figures of one finished unit (its ``unit.json``, whichever run made it), or a
+        clear error."""
         try:
-            units = json.loads((self.out / "results.json").read_text())["units"]
-            return units[f"{scene}/{method}"]["result"]
+            unit = json.loads((self.unit_dir(f"{scene}/{method}") / "unit.json").read_text())
+            return dict(unit["result"])
         except (OSError, ValueError, KeyError, TypeError):
             raise NeoError(
-                f"{self.out} has no finished {scene}/{method} unit (run neo bench --out "
-                f"{self.out} --scenes {scene} --methods {method})"
+                f"{self.out} has no finished {scene}/{method} unit (re-run your neo bench "
+                f"command with --out {self.out} --scenes {scene} --methods {method})"
             ) from None
 
     def kept(self, scene: str, method: str) -> Path:
@@ -59,7 +61,7 @@ class RunFolder:
         path = self.version(scene, method)
         if not path.exists():
             raise NeoError(
-                f"{path} does not exist: run neo bench --out {self.out} --scenes {scene} "
-                f"--methods {method} --keep-versions"
+                f"{path} does not exist: re-run your neo bench command with --out {self.out} "
+                f"--scenes {scene} --methods {method} --keep-versions"
             )
         return path

@@ -81,7 +81,9 @@ def look_centre(capture: Capture) -> np.ndarray:
     """The point the cameras look at: the point closest (least squares) to all optical axes
     when it lies in front of nearly all cameras (a walk around an object); for a forward-
     facing capture, whose axes are nearly parallel, a point straight ahead of the mean camera
-    at the scene's depth (the LLFF bounds, else the median depth of the sparse points)."""
+    at the scene's depth (the LLFF bounds, else the median depth of the sparse points). With
+    LLFF bounds, a least-squares point whose median depth lies outside the bounds' median
+    near..far range is moved along the mean view into it."""
     c2w = capture.camera_to_world
     origins = c2w[:, :3, 3]
     dirs = -c2w[:, :3, 2]  # OpenGL: the camera looks down -z
