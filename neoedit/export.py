@@ -18,6 +18,7 @@ from neoedit.errors import NeoError
 from neoedit.scene import Scene, load_scene
 from neoedit.utils.io import atomic_directory, atomic_write_json, check_writable_output, write_png
 from neoedit.utils.progress import track
+from neoedit.utils.validate import check_memory
 
 DEPTH_UNIT_M = 1e-3
 MAX_FRAMES = 3600
@@ -106,6 +107,11 @@ def render_to_dataset(
     return len(rgbs)
 
 
+BYTES_PER_RENDERED_PIXEL = 100
+"""Memory one pixel of a view takes while it renders (its ray, the chunks' outputs and the
+assembled images, colour and depth pictures), an upper estimate."""
+
+
 def render_command(
     scene_dir: Path,
     out: Path,
@@ -123,10 +129,12 @@ def render_command(
     if cameras_json is None and views == "spiral" and not 1 <= n_frames <= MAX_FRAMES:
         raise NeoError(f"--n-frames must be between 1 and {MAX_FRAMES}, got {n_frames}")
     check_writable_output(out, [scene_dir, cameras_json], "render", overwrite)
-    scene = load_scene(scene_dir, resolve_device(device))
-    if cameras_json is not None:
+    if cameras_json is not None:  # checked before the scene loads
         cameras, names, _ = load_cameras(cameras_json)
-    else:
+        _check_names(names, cameras_json)
+        _check_view_memory(cameras)
+    scene = load_scene(scene_dir, resolve_device(device))
+    if cameras_json is None:
         data_cams, data_names, split = scene.scan_cameras()
         if views == "spiral":
             cameras = spiral_cameras(data_cams, n_frames)
@@ -137,9 +145,16 @@ def render_command(
                 raise NeoError(f"the scene's dataset has no '{views}' views")
             cameras = data_cams.subset(idx)
             names = [data_names[i] for i in idx]
-    _check_names(names, cameras_json or "the scene's dataset")
+        _check_names(names, "the scene's dataset")
+        _check_view_memory(cameras)
     with atomic_directory(out, overwrite, kind="render") as tmp:
         return render_to_dataset(scene, cameras, names, tmp, video)
+
+
+def _check_view_memory(cameras: Cameras) -> None:
+    k = int(np.argmax(cameras.width.astype(np.int64) * cameras.height))
+    w, h = int(cameras.width[k]), int(cameras.height[k])
+    check_memory(w * h * BYTES_PER_RENDERED_PIXEL, f"rendering a {w}x{h} view")
 
 
 def _check_names(names: list[str], where: object) -> None:

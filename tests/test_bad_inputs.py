@@ -298,6 +298,18 @@ CASES = [
     # 16. a render never overwrites its own outputs
     C("render-cameras-named-transforms", "render {scene} --cameras cams.json --out r", 2, "would overwrite the render's own transforms.json", cameras_frame(file_path="transforms.json")),
     C("render-cameras-under-depth", "render {scene} --cameras cams.json --out r", 2, "would overwrite the render's own depth", cameras_frame(file_path="depth/x.png")),
+    # 17. the second probe of issue 42: options under omitted prefixes named as typed, an edit
+    # that would not train refused, one object moved once, a view too big for memory
+    C("remove-zero-steps", "remove {scene} --box mug.json --out v --steps 0", 2, "--steps must be at least 1", MUG),
+    C("remove-zero-rounds", "remove {scene} --box mug.json --out v --rounds 0", 2, "--rounds must be at least 1", MUG),
+    C("remove-zero-turns", "remove {scene} --box mug.json --out v --turns 0", 2, "--turns must be at least 1", MUG),
+    C("remove-negative-reach", "remove {scene} --box mug.json --out v --reach -1", 2, "--reach must be", MUG),
+    C("remove-unknown-removal", "remove {scene} --box mug.json --out v --removal bogus", 2, "--removal 'bogus' is unknown", MUG),
+    C("move-unknown-removal", "move {scene} --box mug.json --translate 0.01 0 0 --out v --edit.remove.removal bogus", 2, "--edit.remove.removal 'bogus' is unknown", MUG),
+    C("move-zero-refine-steps", "move {scene} --box mug.json --translate 0.01 0 0 --out v --edit.remove.refine.steps 0", 2, "--edit.remove.refine.steps must be at least 1", MUG),
+    C("move-one-object-twice", "move {scene} --box mugs.json --translate 0.01 0 0 --out v", 2, "start from the same region", write("mugs.json", [BOX_MUG, BOX_MUG])),
+    C("move-short-translate", "move {scene} --box mug.json --translate 1 2 --out v", 2, "argument count 3 of `FLOAT FLOAT FLOAT`", MUG),
+    C("render-view-beyond-memory", "render {scene} --cameras cams.json --out r", 2, "GiB of memory", cameras(w=32768, h=32768, cx=16384.0, cy=16384.0)),
 ]
 # fmt: on
 

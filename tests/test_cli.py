@@ -135,3 +135,19 @@ def test_a_verb_imports_only_its_own_module(tmp_path: Path):
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.stdout.strip().splitlines()[-1] == "[]", out.stdout + out.stderr
+
+
+def test_a_reader_that_leaves_early_is_no_error(tmp_path: Path):
+    """``neo ... | head -1``: the reader closes the pipe before the command prints; the
+    command finishes (its own exit status, its files) without a BrokenPipeError."""
+    for args in (["grasp", "--help"], ["sim", "scene", "--help"]):
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "neoedit", *args],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+        )
+        assert proc.stdout is not None and proc.stderr is not None
+        proc.stdout.close()  # gone before the command has started
+        err = proc.stderr.read().decode()
+        assert proc.wait(timeout=120) == 0, err
+        assert "Traceback" not in err and "BrokenPipe" not in err, err

@@ -169,5 +169,37 @@ def _run(command: _Command, threads: str | None) -> int:
     return 0
 
 
+class _ReaderMayLeave:
+    """stdout for a command whose reader may stop reading (``neo grasp ... | head -1``): once
+    the pipe is closed, what is printed goes nowhere and the command finishes its work (its
+    files written, its exit status its own) instead of dying of a BrokenPipeError."""
+
+    def __init__(self, stream: Any):
+        self._stream = stream
+
+    def _gone(self) -> None:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, self._stream.fileno())  # what is still buffered flushes there
+        os.close(devnull)
+
+    def write(self, text: str) -> int:
+        try:
+            return int(self._stream.write(text))
+        except BrokenPipeError:
+            self._gone()
+            return len(text)
+
+    def flush(self) -> None:
+        try:
+            self._stream.flush()
+        except BrokenPipeError:
+            self._gone()
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._stream, name)
+
+
 def entry() -> None:
+    if not isinstance(sys.stdout, _ReaderMayLeave) and sys.stdout is not None:
+        sys.stdout = _ReaderMayLeave(sys.stdout)
     sys.exit(main())

@@ -16,6 +16,8 @@ MAX_SUGGESTIONS = 5
 _HELP = re.compile(r"(neo\b[\w .-]*?--help)")
 _OWNER = re.compile(r"^in (neo\b[\w .-]*?) --help$")
 _NOISE = re.compile(r" \(applied to [^)]*\)|Arguments are applied to the directly preceding.*$")
+_MARKUP = re.compile(r"\[/?(?:bold|dim|italic|underline|red|green|yellow|cyan|magenta|blue)\]")
+"""Style tags tyro leaves in some messages' text (``[bold]FLOAT FLOAT FLOAT[/bold]``)."""
 GROUPS = ("sim", "import")
 """Verbs with verbs of their own (neo sim scene, neo import colmap)."""
 
@@ -81,7 +83,7 @@ def condense(text: str, verb: str = "neo") -> str:
     sections = _sections(_rows(text))
     if not sections:
         return text.strip()
-    lines = ["error: " + _NOISE.sub("", " ".join(sections[0])).strip()]
+    lines = ["error: " + _MARKUP.sub("", _NOISE.sub("", " ".join(sections[0]))).strip()]
     suggestions: list[str] = []
     help_hint = None
     for section in sections[1:]:

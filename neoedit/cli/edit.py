@@ -56,6 +56,7 @@ class RemoveCommand:
 
     def run(self) -> None:
         self.query.check()  # before any loading or training
+        self.edit.check()
         from neoedit.edit.pipeline import apply_edit
         from neoedit.edit.remove import Remove, write_report
         from neoedit.scene import save_scene

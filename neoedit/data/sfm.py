@@ -94,6 +94,7 @@ def run_sfm(images: Path, work: Path, cfg: SfMConfig) -> SfMResult:
     pycolmap.logging.minloglevel = 2  # our progress instead of COLMAP's log lines
     database = work / "database.db"
     work.mkdir(parents=True, exist_ok=True)
+    pycolmap.logging.log_dir = str(work)  # its log files (default: /tmp) go with the work
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = cfg.camera_model
     extraction = pycolmap.FeatureExtractionOptions()

@@ -17,6 +17,7 @@ from neoedit.edit.refine import RefineConfig
 from neoedit.edit.remove import RemoveConfig
 from neoedit.errors import NeoError
 from neoedit.geometry import OrientedBox, is_rigid
+from neoedit.geometry.box import box_iou_3d
 from neoedit.records import EditRecord
 from neoedit.scene import Scene
 
@@ -137,11 +138,22 @@ class MoveRegions:
         return LanguageEdit(self.sources, list(zip(self.targets, self.transforms, strict=True)))
 
 
+SAME_OBJECT_IOU = 0.5
+"""Two motions of one edit whose source boxes overlap this much move the same object."""
+
+
 def check_motions(scene: Scene, motions: list[Motion]) -> None:
     """Refuse non-rigid or non-finite transforms and targets outside the scene box."""
     if not motions:
         raise NeoError("nothing to move: give a prompt or --box")
     check_edit_boxes(scene, [m.box for m in motions])  # inside the scene box, not empty
+    for i, a in enumerate(motions):
+        for j in range(i + 1, len(motions)):
+            if box_iou_3d(a.box, motions[j].box) >= SAME_OBJECT_IOU:
+                raise NeoError(
+                    f"motions {i + 1} and {j + 1} start from the same region (box IoU "
+                    f"{box_iou_3d(a.box, motions[j].box):.2f}): an object moves once per edit"
+                )
     aabb = scene.field.aabb.cpu().numpy()
     for m in motions:
         if not is_rigid(m.transform):

@@ -45,6 +45,7 @@ from neoedit.rendering.renderer import render_chunked
 from neoedit.scene import Scene
 from neoedit.utils.fit import fit
 from neoedit.utils.optim import field_param_groups, make_adam
+from neoedit.utils.options import spelt
 from neoedit.utils.progress import make_progress
 from neoedit.utils.timings import Timings
 
@@ -116,16 +117,18 @@ class RefineConfig:
     Out-PSNR is the same at 24 and 32, within 0.2 dB, see benchmarks/RESULTS.md)."""
     seed: int = 0
 
-    def check(self, where: str = "--refine") -> None:
-        """Refuse settings the training cannot run with (before any work starts)."""
+    def check(self, where: str = "") -> None:
+        """Refuse settings the training cannot run with (before any work starts); ``where``:
+        the options' prefix on the command line ('': none)."""
         for name in (
+            "steps",
             "span_samples",
             "virtual_rays",
             "rounds",
             "scan_views",
         ):
             if getattr(self, name) < 1:
-                raise NeoError(f"{where}.{name.replace('_', '-')} must be at least 1")
+                raise NeoError(f"{spelt(where, name)} must be at least 1")
 
 
 def crop_window(masks: list[np.ndarray], margin_px: int) -> tuple[slice, slice]:

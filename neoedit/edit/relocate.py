@@ -103,9 +103,8 @@ def check_move_config(cfg: MoveConfig, where: str = "--edit") -> None:
             f"{where}.reuse-removal-patch applies to NEO's patch student only (not with "
             f"--preview or {where}.student field)"
         )
-    cfg.remove.shadow.check(f"{where}.remove.shadow")
+    cfg.remove.check(f"{where}.remove")
     cfg.distill.check(f"{where}.distill")
-    cfg.remove.refine.check(f"{where}.remove.refine")
     cfg.language.check(f"{where}.language")
 
 

@@ -39,6 +39,7 @@ from neoedit.records import EditRecord
 from neoedit.rendering.occupancy import cells_in_boxes, refresh_grid
 from neoedit.scene import Scene, load_scene, save_scene
 from neoedit.utils.io import write_png
+from neoedit.utils.options import spelt
 from neoedit.viz.contact_sheet import tile_images
 from neoedit.viz.zoom import before_after, edited_boxes, report_views
 
@@ -80,6 +81,20 @@ class RemoveConfig:
     """The object's shadow on its support, found around its footprint, is removed with it
     (inpainted edits only; a thin slab on the support joins the edited region)."""
 
+    def check(self, where: str = "") -> None:
+        """Refuse settings the removal cannot run with, before any loading or query;
+        ``where``: the prefix its options carry on the command line ('': none, as in
+        ``neo remove --steps``; '--edit.remove' in ``neo move``)."""
+        if self.removal not in REMOVAL_MODES:
+            raise NeoError(
+                f"{spelt(where, 'removal')} {self.removal!r} is unknown (choose from "
+                f"{', '.join(REMOVAL_MODES)})"
+            )
+        self.refine.check(where and f"{where}.refine")
+        self.shadow.check(where and f"{where}.shadow")
+        if self.views.turns < 1:
+            raise NeoError(f"{spelt(where and f'{where}.views', 'turns')} must be at least 1")
+
 
 @dataclass
 class Remove:
@@ -99,15 +114,10 @@ class Remove:
 
     def prepare(self, parent: Scene) -> Prepared:
         cfg = self.cfg
-        if cfg.removal not in REMOVAL_MODES:
-            raise NeoError(
-                f"unknown removal {cfg.removal!r} (choose from {', '.join(REMOVAL_MODES)})"
-            )
+        cfg.check()
         if not self.boxes:
             raise NeoError("nothing to remove: give a prompt or --box")
         check_edit_boxes(parent, self.boxes)  # inside the scene box, not empty
-        cfg.refine.check()
-        cfg.shadow.check("--edit.shadow")
         work = working_boxes(parent, self.boxes, cfg)
         shadows = []
         if cfg.inpaint:  # the shadow goes with the object (a render-time cut keeps it)

@@ -28,6 +28,7 @@ from neoedit.fields.radiance import Field
 from neoedit.geometry import OrientedBox
 from neoedit.rendering.support import SupportView, scan_elevation_deg, support_around
 from neoedit.scene import Scene
+from neoedit.utils.options import spelt
 
 SLAB_LIFT_M = 0.002
 """A shadow slab starts this far above the support (the table itself is not cut)."""
@@ -68,16 +69,18 @@ class ShadowConfig:
     """The support's rendered depth must lie within this of the box's bottom; the slab is
     this high."""
 
-    def check(self, where: str = "--shadow") -> None:
+    def check(self, where: str = "") -> None:
+        """Refuse settings the search cannot run with; ``where``: the options' prefix on the
+        command line ('': none)."""
         if not self.smooth_cells >= 0:
-            raise NeoError(f"{where}.smooth-cells must be >= 0")
+            raise NeoError(f"{spelt(where, 'smooth_cells')} must be >= 0")
         for name in ("reach", "ring", "darker", "max_texture", "cell_m", "band_m"):
             if not getattr(self, name) > 0:
-                raise NeoError(f"{where}.{name.replace('_', '-')} must be > 0")
+                raise NeoError(f"{spelt(where, name)} must be > 0")
         if self.darker >= 1:
-            raise NeoError(f"{where}.darker must be < 1")
+            raise NeoError(f"{spelt(where, 'darker')} must be < 1")
         if self.max_texture > 1:
-            raise NeoError(f"{where}.max-texture must be <= 1")
+            raise NeoError(f"{spelt(where, 'max_texture')} must be <= 1")
 
 
 @dataclass

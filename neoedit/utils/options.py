@@ -72,6 +72,13 @@ def flag(path: tuple[str, ...]) -> str:
     return "--" + ".".join(p.replace("_", "-") for p in path)
 
 
+def spelt(prefix: str, name: str) -> str:
+    """An option's flag under a prefix: ('--edit.distill', 'lr') -> '--edit.distill.lr';
+    ('', 'max_steps') -> '--max-steps' (a config whose prefix the command omits)."""
+    name = name.replace("_", "-")
+    return f"{prefix}.{name}" if prefix else f"--{name}"
+
+
 def _default(f: dataclasses.Field) -> Any:
     if f.default is not dataclasses.MISSING:
         return f.default
@@ -112,15 +119,18 @@ def _omits_prefix(hint: Any) -> bool:
     return any(m is tyro.conf.OmitArgPrefixes for m in getattr(hint, "__metadata__", ()))
 
 
-def check_options(cfg: Any, path: tuple[str, ...] = ()) -> None:
+def check_options(cfg: Any, path: tuple[str, ...] = (), omit: bool = False) -> None:
     """Every numeric option of a (nested) config dataclass by the module's rules; tuples of
-    numbers (translations, boxes) only finite. Raises :class:`NeoError` naming the flag."""
+    numbers (translations, boxes) only finite. Raises :class:`NeoError` naming the flag.
+    ``omit``: the command spells the options below here without prefixes (tyro's
+    OmitArgPrefixes reaches every level under the config it marks)."""
     hints = _hints(type(cfg))
     for f in dataclasses.fields(cfg):
         value = getattr(cfg, f.name)
         here = (*path, f.name)
         if dataclasses.is_dataclass(value) and not isinstance(value, type):
-            check_options(value, path if _omits_prefix(hints.get(f.name)) else here)
+            below = omit or _omits_prefix(hints.get(f.name))
+            check_options(value, path if below else here, below)
         elif _number(value):
             _check_number(f.name, value, _default(f), flag(here))
         elif isinstance(value, (tuple, list)):

@@ -73,13 +73,36 @@ def resource_message(error: Exception) -> str | None:
     if isinstance(error, MemoryError) or "DefaultCPUAllocator" in text or "out of memory" in text:
         return user_message(
             RuntimeError(
-                "out of memory: lower --rays-per-batch, the image size (--downscale) or the "
-                f"number of views ({shorten(text.splitlines()[0] if text else 'MemoryError', 200)})"
+                "out of memory: ask for less at once (fewer rays per batch, smaller images or "
+                "fewer views, by the options this command has) "
+                f"({shorten(text.splitlines()[0] if text else 'MemoryError', 200)})"
             )
         )
     if "No space left on device" in text or "Disk quota exceeded" in text:
         return user_message(RuntimeError(f"the disk is full: free space and run again ({text})"))
     return None
+
+
+def available_memory() -> int | None:
+    """Bytes of memory the system can still give (Linux's MemAvailable), None where unknown."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+def check_memory(need: int, what: str) -> None:
+    """Refuse work that needs more memory (bytes) than the system has free, before it
+    starts (where the free memory is known)."""
+    free = available_memory()
+    if free is not None and need > free:
+        raise NeoError(
+            f"{what} needs about {need / 2**30:.1f} GiB of memory, {free / 2**30:.1f} GiB are free"
+        )
 
 
 def check_device(name: str) -> None:
