@@ -156,6 +156,25 @@ def test_no_support_plane_is_a_clear_error():
         discover(pts, np.zeros((3000, 3), np.uint8), _cameras(), GeometricConfig())
 
 
+def test_a_rough_support_is_found_with_a_wider_tolerance():
+    """A table reconstructed from photos is not flat to 6 mm (spinnerf_1's bench: 12 % of
+    the points within 6 mm of a plane): with no plane found at ``inlier_m`` the search is
+    made again at ``rough_factor`` times it, and finds the table and the objects on it."""
+    points, rgb, truth = synthetic_scene()
+    rng = np.random.default_rng(2)
+    table = truth == -1
+    points = points.copy()
+    points[table, 2] += rng.normal(0, 0.008, table.sum())  # rough: ~ 1/2 within 6 mm
+    points = np.concatenate([points, rng.uniform(-0.5, 0.5, (80000, 3)) + [0, 0, 0.6]])
+    rgb = np.concatenate([rgb, np.full((80000, 3), 90, np.uint8)])  # a cloud of room
+    with pytest.raises(NeoError, match="no support plane"):
+        discover(points, rgb, _cameras(), GeometricConfig(rough_factor=1.0))
+    disc = discover(points, rgb, _cameras(), GeometricConfig())
+    assert np.allclose(disc.plane.normal, [0, 0, 1], atol=0.02)
+    assert len(disc.instances) == 3
+    assert np.mean(disc.labels[: len(truth)][table] == TABLE) > 0.8  # 87 % lie within 12 mm
+
+
 def test_colour_names():
     assert colour_name(np.array([190, 30, 30])) == "red"
     assert colour_name(np.array([198, 78, 77])) == "pink"

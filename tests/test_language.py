@@ -191,6 +191,23 @@ def test_yaw_error_respects_symmetry():
     assert yaw_error_deg(OrientedBox((0, 0, 0), (0.1, 0.1, 0.1), 85.0), sq) == pytest.approx(5.0)
 
 
+def test_a_box_known_by_its_top_reaches_down_to_the_support():
+    """Only the top of an object is relevant (a forward-facing capture's cardboard box: the
+    teacher's object is its lid): its box still reaches down to the surface it stands on,
+    the height where the points below crowd, not the top of its own sides."""
+    from neoedit.language.localize import footprint_box, support_height
+
+    rng = np.random.default_rng(0)
+    top = np.c_[rng.uniform(-0.1, 0.1, (800, 2)), np.full(800, 0.08)]
+    side = np.c_[np.full(1500, 0.1), rng.uniform(-0.1, 0.1, 1500), rng.uniform(0, 0.08, 1500)]
+    ring = rng.uniform(-0.15, 0.15, (3000, 2))
+    ring = ring[np.abs(ring).max(1) > 0.1]
+    table = np.c_[ring, rng.normal(0, 0.001, len(ring))]
+    points = np.concatenate([top, side, table])
+    box = footprint_box(top, QueryConfig())
+    assert support_height(points, top, box, QueryConfig()) == pytest.approx(0.0, abs=0.004)
+
+
 @pytest.fixture(scope="module")
 def language_scene(trained: Path, sim_root: Path, tmp_path_factory) -> Path:
     """The tiny trained scene with a label-teacher language field (MiniLM names)."""

@@ -190,6 +190,10 @@ def voxel_thin(points: np.ndarray, voxel_m: float) -> np.ndarray:
     return np.sort(first)
 
 
+SUPPORT_BIN_M = 0.005
+"""Height bins in which the surface under a found object is looked for."""
+
+
 def support_height(
     points: np.ndarray, cluster: np.ndarray, box: OrientedBox, cfg: QueryConfig
 ) -> float | None:
@@ -207,7 +211,15 @@ def support_height(
     )
     if int(near.sum()) < 10:
         return None
-    return float(np.quantile(points[near, 2], 0.9))  # the top of what lies below
+    # a support is a horizontal surface: the height where the points below crowd (the
+    # object's own sides, under a cluster that holds only its top, spread over theirs)
+    heights = points[near, 2]
+    counts, edges = np.histogram(heights, bins=max(int(np.ptp(heights) / SUPPORT_BIN_M), 1))
+    k = int(np.argmax(counts))
+    crowd = heights[
+        (heights >= edges[max(k - 1, 0)]) & (heights <= edges[min(k + 2, len(edges) - 1)])
+    ]
+    return float(np.quantile(crowd, 0.9))  # the top of that surface
 
 
 def localize(
