@@ -273,6 +273,7 @@ CASES = [
     C("query-eps-inf", "query {scene} mug --query.eps-m inf", 2, "--query.eps-m must be a finite number"),
     C("query-no-canonical", "query {scene} mug --query.canonical", 2, "--query.canonical needs"),
     C("grasp-nan-width", "grasp {scene} mug --grasp.min-width-m nan", 2, "--grasp.min-width-m must be a finite"),
+    C("grasp-min-width-beyond-opening", "grasp {scene} mug --grasp.min-width-m 1e9", 2, "must be below the gripper's widest opening"),
     C("move-nan-translate", "move {scene} --box mug.json --translate 0.1 0 nan --out v", 2, "--translate must be finite", MUG),
     C("bench-negative-seed", "bench --out b --seed -1", 2, "--seed must be >= 0"),
     C("bench-ray-unreachable", "bench --out b --scenes removal_1 --methods pre-edit --ray 127.0.0.1:1", 2, "cannot reach the Ray cluster"),

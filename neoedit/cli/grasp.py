@@ -67,6 +67,12 @@ class GraspCommand:
             raise NeoError("--grasp.surface.opacity must be in (0, 1)")
         if not self.grasp.collision_density > 0:
             raise NeoError("--grasp.collision-density must be > 0 [1/m]")
+        if self.grasp.min_width_m >= self.grasp.gripper.max_width_m:
+            raise NeoError(
+                f"--grasp.min-width-m ({self.grasp.min_width_m:g} m) must be below the "
+                f"gripper's widest opening (--grasp.gripper.max-width-m "
+                f"{self.grasp.gripper.max_width_m:g} m)"
+            )
         request = self.prompt if self.prompt is not None else Path(self.box or "box").stem
         out = self.out or default_output("grasp", self.scene, request)
         check_writable_output(out, [self.scene], "grasp", self.overwrite)
