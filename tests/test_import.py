@@ -491,9 +491,10 @@ def test_sparse_depth_image_keeps_the_nearest_point_and_round_trips_the_png(tmp_
     np.testing.assert_allclose(read_depth_m(path, unit), depth, atol=unit / 2)
 
 
-def _forward_facing(root: Path) -> np.ndarray:
+def _forward_facing(root: Path, shrink: int = 4) -> np.ndarray:
     """An LLFF capture the way LLFF is shot: 3x3 photos from a hand moved in a plane across
-    the view, every camera looking the same way, down at a textured floor (80x60 px)."""
+    the view, every camera looking the same way, down at a textured floor (320x240 px
+    divided by ``shrink``)."""
     from neoedit.cameras.cameras import look_at
 
     ahead = np.array([0.0, 0.4, -0.3])  # 37 deg below the horizon, over the floor
@@ -509,10 +510,13 @@ def _forward_facing(root: Path) -> np.ndarray:
     tex = cs.floor_texture(size=512)
     rows = []
     for i, pose in enumerate(c2w):
-        image = cv2.resize(cs.render_floor(pose, k, tex, supersample=2), (80, 60), cv2.INTER_AREA)
+        image = cv2.resize(
+            cs.render_floor(pose, k, tex, supersample=2), (cs.W // shrink, cs.H // shrink),
+            interpolation=cv2.INTER_AREA,
+        )  # fmt: skip
         cv2.imwrite(str(root / "images" / f"{i:04d}.png"), image)
         down, right, back = -pose[:3, 1], pose[:3, 0], pose[:3, 2]
-        mat = np.c_[down, right, back, pose[:3, 3], [60, 80, cs.F / 4]]
+        mat = np.c_[down, right, back, pose[:3, 3], [cs.H // shrink, cs.W // shrink, cs.F / shrink]]
         rows.append(np.r_[mat.ravel(), 0.3, 1.5])
     np.save(root / "poses_bounds.npy", np.array(rows))
     return c2w
@@ -527,7 +531,8 @@ def test_a_forward_facing_llff_capture_imports_and_trains(tmp_path):
     from tests.conftest import tiny_train
 
     _forward_facing(tmp_path / "cap")
-    assert main(["import", "llff", str(tmp_path / "cap"), "--out", str(tmp_path / "ds")]) == 0
+    args = ["import", "llff", str(tmp_path / "cap"), "--out", str(tmp_path / "ds")]
+    assert main([*args, "--no-triangulate"]) == 0
     data = load_scene_data(tmp_path / "ds")
     assert data.depth_m is None and len(data.split["test"]) == 2
     # the box holds the point every camera looks at (0.5 m ahead: the assumed distance)
@@ -543,6 +548,28 @@ def test_a_forward_facing_llff_capture_imports_and_trains(tmp_path):
     flat = np.mean([psnr(np.broadcast_to(t.reshape(-1, 3).mean(0), t.shape), t) for t in truth])
     # measured: 26.9 dB held out, 18.2 dB for the flat-colour guess
     assert held_out > flat + 5.0, (held_out, flat)
+
+
+def test_a_forward_facing_capture_is_levelled_on_the_points_it_triangulates(tmp_path):
+    """LLFF gives poses and no points: without points up is the cameras' mean up axis, which
+    tilts back by how far the photos look down (37 deg here). The import triangulates points
+    at the known poses, levels the scene on the floor they lie on and writes their depths."""
+    _forward_facing(tmp_path / "cap", shrink=1)
+    args = ["import", "llff", str(tmp_path / "cap")]
+    for name, extra in (("plain", []), ("points", ["--triangulate"])):
+        assert main([*args, "--out", str(tmp_path / name), *extra]) == 0
+    plain, levelled = load_scene_data(tmp_path / "plain"), load_scene_data(tmp_path / "points")
+
+    def looks_down_deg(data) -> float:
+        view = -data.cameras.camera_to_world[:, :3, 2].mean(0)
+        return float(np.degrees(np.arcsin(-view[2] / np.linalg.norm(view))))
+
+    assert abs(looks_down_deg(plain)) < 2.0  # up = the cameras' up: the view is "level"
+    # as they were shot, to the plane fit of points from a 10 cm baseline (measured 33.6)
+    assert looks_down_deg(levelled) == pytest.approx(36.9, abs=4.0)
+    assert plain.depth_m is None and levelled.depth_m is not None
+    seen = levelled.depth_m[levelled.depth_m > 0]
+    assert len(seen) > 200  # sparse depth of the floor, every photo
 
 
 @pytest.mark.parametrize(("meet", "expected"), [(0.1, 0.3), (0.8, 0.8), (3.0, 1.5)])

@@ -46,8 +46,13 @@ class OrientConfig:
     min_plane_share: float = 0.15
     """The plane must hold this share of the sparse points to define up."""
     max_plane_tilt_deg: float = 25.0
-    """The support plane's normal is within this angle of the mean camera up (so a wall
-    with many points behind the object is not taken for the floor)."""
+    """The support plane's normal is within this angle of the cameras' up (the normal of the
+    ring they stand on; so a wall with many points behind the object is not taken for the
+    floor)."""
+    max_plane_tilt_forward_deg: float = 60.0
+    """The same limit when up is only the cameras' mean up axis (no ring: a forward-facing
+    capture), which leans back by as much as the photos look down (spinnerf_1: 25 deg); a
+    wall facing the cameras is still ~90 deg from it."""
     box_extent: float = 1.5
     """Horizontal half-size of the box as a multiple of the cameras' median distance from
     the vertical through the origin (beyond it, what the photos see is left to the learned
@@ -136,11 +141,12 @@ def _support(
     ref, ref_source = _camera_up(capture)
     pts = capture.points[np.linalg.norm(capture.points - centre, axis=1) < 1.5 * distance]
     if len(pts) >= 50:
+        ring = ref_source.startswith("plane")
         plane = fit_plane(
             pts,
             cfg.plane_inlier_fraction * distance,
             near_normal=ref,
-            max_angle_deg=cfg.max_plane_tilt_deg,
+            max_angle_deg=cfg.max_plane_tilt_deg if ring else cfg.max_plane_tilt_forward_deg,
         )
         if plane is not None and plane.inliers.mean() >= cfg.min_plane_share:
             plane = plane if plane.normal @ ref > 0 else plane.flipped()

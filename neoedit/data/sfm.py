@@ -100,7 +100,7 @@ def run_sfm(images: Path, work: Path, cfg: SfMConfig) -> SfMResult:
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.max_image_size = cfg.max_image_size
     extraction.sift.max_num_features = cfg.max_features
-    sequential = cfg.matcher == "sequential" or (cfg.matcher == "auto" and len(names) > 40)
+    sequential = is_sequential(cfg, len(names))
     stages: list[tuple[str, Callable[[], object]]] = [
         (
             f"features ({len(names)} photos)",
@@ -118,7 +118,7 @@ def run_sfm(images: Path, work: Path, cfg: SfMConfig) -> SfMResult:
             "matching ("
             + (f"sequential, overlap {cfg.overlap}" if sequential else "exhaustive")
             + ")",
-            lambda: _match(pycolmap, database, sequential, cfg),
+            lambda: match_pairs(pycolmap, database, len(names), cfg),
         ),
     ]
     try:
@@ -142,8 +142,14 @@ def run_sfm(images: Path, work: Path, cfg: SfMConfig) -> SfMResult:
     return _largest(models, work, images, len(names), cfg)
 
 
-def _match(pycolmap, database: Path, sequential: bool, cfg: SfMConfig) -> None:  # noqa: ANN001
-    if sequential:
+def is_sequential(cfg: SfMConfig, photos: int) -> bool:
+    return cfg.matcher == "sequential" or (cfg.matcher == "auto" and photos > 40)
+
+
+def match_pairs(pycolmap, database: Path, photos: int, cfg: SfMConfig) -> None:  # noqa: ANN001
+    """Feature matches between the photos of ``database``: sequential (neighbours in name
+    order) or exhaustive, as ``cfg.matcher`` says ('auto': sequential beyond 40 photos)."""
+    if is_sequential(cfg, photos):
         pairing = pycolmap.SequentialPairingOptions()
         pairing.overlap = cfg.overlap
         pairing.loop_detection = False  # needs a vocabulary tree (a download)
