@@ -112,6 +112,10 @@ BYTES_PER_RENDERED_PIXEL = 100
 assembled images, colour and depth pictures), an upper estimate."""
 
 
+BYTES_PER_KEPT_PIXEL = 20
+"""Memory each rendered pixel keeps until the views are written (colour, depth, pictures)."""
+
+
 def render_command(
     scene_dir: Path,
     out: Path,
@@ -152,9 +156,14 @@ def render_command(
 
 
 def _check_view_memory(cameras: Cameras) -> None:
-    k = int(np.argmax(cameras.width.astype(np.int64) * cameras.height))
-    w, h = int(cameras.width[k]), int(cameras.height[k])
-    check_memory(w * h * BYTES_PER_RENDERED_PIXEL, f"rendering a {w}x{h} view")
+    """The largest view while it renders, and every view's pictures, which the render keeps
+    until it writes them."""
+    pixels = cameras.width.astype(np.int64) * cameras.height
+    k = int(np.argmax(pixels))
+    need = int(pixels[k]) * BYTES_PER_RENDERED_PIXEL + int(pixels.sum()) * BYTES_PER_KEPT_PIXEL
+    check_memory(
+        need, f"rendering {len(pixels)} views (the largest {cameras.width[k]}x{cameras.height[k]})"
+    )
 
 
 def _check_names(names: list[str], where: object) -> None:

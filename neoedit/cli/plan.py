@@ -59,6 +59,7 @@ class PlanCommand:
     def run(self) -> None:
         self.query.check()  # before any loading or training
         check_move_method(self.method, self.preview, self.edit.move, self.seal3d, "--edit.move")
+        self.edit.remove.check("--edit.remove")
         from neoedit.edit.plan import apply_action, check_plan, load_plan, plan_boxes
         from neoedit.edit.remove import write_report
         from neoedit.scene import load_scene, save_scene

@@ -197,8 +197,8 @@ SUPPORT_BIN_M = 0.005
 def support_height(
     points: np.ndarray, cluster: np.ndarray, box: OrientedBox, cfg: QueryConfig
 ) -> float | None:
-    """z of the surface the cluster stands on: the 90th percentile height of the other points
-    around its footprint that lie below it, or None if there are too few (the cluster already reaches
+    """z of the surface the cluster stands on: the top of the highest height band where the
+    other points around its footprint below it crowd (a horizontal surface), or None if there are too few (the cluster already reaches
     down to its support, or nothing is seen around it)."""
     z0 = float(cluster[:, 2].min())
     grown = OrientedBox(
@@ -215,7 +215,7 @@ def support_height(
     # object's own sides, under a cluster that holds only its top, spread over theirs)
     heights = points[near, 2]
     counts, edges = np.histogram(heights, bins=max(int(np.ptp(heights) / SUPPORT_BIN_M), 1))
-    k = int(np.argmax(counts))
+    k = int(np.nonzero(counts >= 0.5 * counts.max())[0][-1])  # the highest crowded bin
     crowd = heights[
         (heights >= edges[max(k - 1, 0)]) & (heights <= edges[min(k + 2, len(edges) - 1)])
     ]
