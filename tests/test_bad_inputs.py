@@ -183,8 +183,8 @@ CASES = [
     C("info-pose-bottom-row", "info {data}", 2, "last row", set_frame(0, transform_matrix=[[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 1, 1]])),
     C("render-cameras-negative-focal", "render {scene} --cameras cams.json --out r", 2, "must be positive", cameras(fl_x=-5)),
     # 4. impossible options
-    C("train-negative-steps", "train {data} --out s --max-steps -5", 2, "--max-steps must be >= 0"),
-    C("train-zero-steps", "train {data} --out s --max-steps 0", 2, "--max-steps"),
+    C("train-negative-steps", "train {data} --out s --max-steps -5", 2, "--max-steps must be at least 1, got -5"),
+    C("train-zero-steps", "train {data} --out s --max-steps 0", 2, "--max-steps must be at least 1, got 0"),
     C("train-zero-minutes", "train {data} --out s --max-minutes 0", 2, "--max-minutes"),
     C("train-nan-lr", "train {data} --out s --lr nan", 2, "--lr must be a finite number"),
     C("train-zero-rays", "train {data} --out s --rays-per-batch 0", 2, "--rays-per-batch"),

@@ -151,3 +151,17 @@ def test_a_reader_that_leaves_early_is_no_error(tmp_path: Path):
         err = proc.stderr.read().decode()
         assert proc.wait(timeout=120) == 0, err
         assert "Traceback" not in err and "BrokenPipe" not in err, err
+
+
+def test_a_reader_that_leaves_early_is_no_error_on_stderr_too():
+    """``neo ... 2>&1 | head``: errors written to a closed pipe leave the command's own exit
+    status (2 for a refused input), not Python's 1 or 120 for a broken pipe."""
+    for args, status in ((["log", "/nonexistent_store"], 2), (["grasp", "--help"], 0)):
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "neoedit", *args],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+        )
+        assert proc.stdout is not None
+        proc.stdout.close()
+        assert proc.wait(timeout=120) == status, args

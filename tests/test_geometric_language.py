@@ -152,8 +152,9 @@ def test_discovery_drops_specks_and_keeps_background():
 def test_no_support_plane_is_a_clear_error():
     rng = np.random.default_rng(0)
     pts = rng.normal(size=(3000, 3))
-    with pytest.raises(NeoError, match="no support plane"):
+    with pytest.raises(NeoError, match="no support plane") as e:
         discover(pts, np.zeros((3000, 3), np.uint8), _cameras(), GeometricConfig())
+    assert "within 6 mm and" in str(e.value) and "within 12 mm of" in str(e.value)  # both looks
 
 
 def test_a_rough_support_is_found_with_a_wider_tolerance():

@@ -553,10 +553,11 @@ def test_a_forward_facing_llff_capture_imports_and_trains(tmp_path):
 def test_a_forward_facing_capture_is_levelled_on_the_points_it_triangulates(tmp_path):
     """LLFF gives poses and no points: without points up is the cameras' mean up axis, which
     tilts back by how far the photos look down (37 deg here). The import triangulates points
-    at the known poses, levels the scene on the floor they lie on and writes their depths."""
+    at the known poses (by default), levels the scene on the floor they lie on and, asked
+    to, writes their depths."""
     _forward_facing(tmp_path / "cap", shrink=1)
     args = ["import", "llff", str(tmp_path / "cap")]
-    for name, extra in (("plain", []), ("points", ["--triangulate"])):
+    for name, extra in (("plain", ["--no-triangulate"]), ("points", ["--sparse-depth"])):
         assert main([*args, "--out", str(tmp_path / name), *extra]) == 0
     plain, levelled = load_scene_data(tmp_path / "plain"), load_scene_data(tmp_path / "points")
 
@@ -570,6 +571,25 @@ def test_a_forward_facing_capture_is_levelled_on_the_points_it_triangulates(tmp_
     assert plain.depth_m is None and levelled.depth_m is not None
     seen = levelled.depth_m[levelled.depth_m > 0]
     assert len(seen) > 200  # sparse depth of the floor, every photo
+
+
+def test_a_failed_triangulation_leaves_the_cameras_up(tmp_path, monkeypatch, capsys):
+    """Photos without features to triangulate: the LLFF import warns and goes on with the
+    cameras' mean up instead of refusing a capture whose poses are fine."""
+    import neoedit.data.triangulate as tri
+    from neoedit.errors import DataError
+
+    def fails(capture, work, cfg=None):
+        raise DataError(f"triangulation failed on {capture.image_dir}: no matches")
+
+    monkeypatch.setattr(tri, "triangulate", fails)
+    _forward_facing(tmp_path / "cap")
+    assert main(["import", "llff", str(tmp_path / "cap"), "--out", str(tmp_path / "ds")]) == 0
+    assert "no matches; up is the cameras' mean up" in " ".join(capsys.readouterr().err.split())
+    meta = json.loads((tmp_path / "ds" / "transforms.json").read_text())
+    assert meta["neoedit_import"]["orientation"]["up_source"].startswith("mean camera up")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cap", "ds"]  # no work folder left
+    assert not (tmp_path / "ds" / "depth").exists()
 
 
 @pytest.mark.parametrize(("meet", "expected"), [(0.1, 0.3), (0.8, 0.8), (3.0, 1.5)])

@@ -320,6 +320,40 @@ def test_estimate_up_takes_the_ground_not_a_larger_wall(sim_root: Path):
     assert up @ floor_normal > 0.999
 
 
+def test_estimate_up_finds_a_rough_floor_with_a_second_look(sim_root: Path):
+    """A floor reconstructed from photos, 8 mm rough, among scattered points: too few lie
+    within 5 mm of any plane. Cameras looking 46 deg down (their up would be refused) make
+    one more look at 10 mm, which finds it; cameras whose up passes stay the fallback."""
+    data = load_scene_data(sim_root / "removal_1" / "pre")
+    rng = np.random.default_rng(1)
+    tilt = np.radians(12.0)
+    normal = np.array([np.sin(tilt), 0.0, np.cos(tilt)])
+    e1 = np.cross([0.0, 1.0, 0.0], normal)
+    uv = rng.uniform(-0.3, 0.3, size=(600, 2))
+    floor = uv[:, :1] * e1 + uv[:, 1:] * np.array([0.0, 1.0, 0.0])
+    floor += rng.normal(0.0, 0.008, (600, 1)) * normal
+    points = np.concatenate([floor, rng.uniform(-0.3, 0.3, (1200, 3))])
+    down = np.radians(46.0)
+    pitch = np.eye(4)
+    pitch[1:3, 1:3] = [[np.cos(down), -np.sin(down)], [np.sin(down), np.cos(down)]]
+    looking_down = data.cameras.with_poses(pitch @ data.cameras.camera_to_world)
+    up = estimate_up(looking_down, points)
+    assert up @ normal > 0.998
+    assert estimate_up(looking_down, points, rough_factor=1.0) @ normal < 0.8  # the cameras
+    level = estimate_up(data.cameras, points)  # the cameras' up passes: no second look
+    assert np.allclose(level, estimate_up(data.cameras)), level
+
+
+def test_a_tilted_scene_is_refused_with_the_way_to_level_it():
+    """spinnerf_1 imported with --no-triangulate: its bench 41 deg from +z; yaw-only boxes
+    cannot fit it, and the message says how to import it level."""
+    from neoedit.language.localize import check_up
+
+    check_up(np.array([np.sin(np.radians(29.0)), 0.0, np.cos(np.radians(29.0))]))
+    with pytest.raises(NeoError, match="41 deg from world.*without --no-triangulate"):
+        check_up(np.array([0.0, np.sin(np.radians(41.0)), np.cos(np.radians(41.0))]))
+
+
 # --- CLIP / DINO backends on tiny random models built here (real loading code) -------------
 
 

@@ -45,8 +45,10 @@ class RunFolder:
         return self.unit_dir(f"{scene}/{method}") / ("store" if scene == "assembly" else "scene")
 
     def result(self, scene: str, method: str) -> dict[str, Any]:
-        """The figures of one finished unit (its ``unit.json``, whichever run made it), or a
-        clear error."""
+        """The figures of one finished unit (its ``unit.json``), or a clear error. They are
+        those of the run that last finished the unit in this folder: a unit redone with other
+        settings replaces its whole folder, kept version included, so the figures and
+        :meth:`kept` always come from the same run."""
         try:
             unit = json.loads((self.unit_dir(f"{scene}/{method}") / "unit.json").read_text())
             return dict(unit["result"])

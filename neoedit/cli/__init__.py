@@ -170,9 +170,10 @@ def _run(command: _Command, threads: str | None) -> int:
 
 
 class _ReaderMayLeave:
-    """stdout for a command whose reader may stop reading (``neo grasp ... | head -1``): once
-    the pipe is closed, what is printed goes nowhere and the command finishes its work (its
-    files written, its exit status its own) instead of dying of a BrokenPipeError."""
+    """stdout or stderr of a command whose reader may stop reading (``neo grasp ... | head
+    -1``, ``2>&1 | head``): once the pipe is closed, what is printed goes nowhere and the
+    command finishes its work (its files written, its exit status its own) instead of dying
+    of a BrokenPipeError."""
 
     def __init__(self, stream: Any):
         self._stream = stream
@@ -202,4 +203,6 @@ class _ReaderMayLeave:
 def entry() -> None:
     if not isinstance(sys.stdout, _ReaderMayLeave) and sys.stdout is not None:
         sys.stdout = _ReaderMayLeave(sys.stdout)
+    if not isinstance(sys.stderr, _ReaderMayLeave) and sys.stderr is not None:
+        sys.stderr = _ReaderMayLeave(sys.stderr)
     sys.exit(main())

@@ -47,6 +47,17 @@ BACKGROUND_PHRASES = ("background", "wall", "room")
 class NoSupportPlane(NeoError):
     """No plane holds enough of the surface points to be the table / floor."""
 
+    def __init__(self, looks: list[tuple[float, float]], needed: float):
+        """``looks``: (inlier distance [m], share of the surface points) of each plane
+        looked for; ``needed``: the share a support must hold."""
+        held = " and ".join(f"{100 * share:.0f} % within {1000 * d:.0f} mm" for d, share in looks)
+        super().__init__(
+            "the geometric language teacher found no support plane (table / floor): the "
+            f"largest plane holds {held} of the surface points, < {100 * needed:.0f} %; "
+            "train with --skip-language, or give a teacher (--language.clip-path)"
+        )
+        self.looks = looks
+
 
 @dataclass
 class GeometricConfig:
@@ -155,13 +166,8 @@ def support_plane(points: np.ndarray, up_hint: np.ndarray, cfg: GeometricConfig)
         cfg.max_support_tilt_deg,
     )
     if found is None or found[2] < cfg.min_support_fraction:
-        share = 0.0 if found is None else found[2]
-        raise NoSupportPlane(
-            f"the geometric language teacher found no support plane (table / floor): the "
-            f"largest plane holds {100 * share:.0f} % of the surface points, "
-            f"< {100 * cfg.min_support_fraction:.0f} %; train with --skip-language, or give "
-            "a teacher (--language.clip-path)"
-        )
+        share = 0.0 if found is None else float(found[2])
+        raise NoSupportPlane([(cfg.inlier_m, share)], cfg.min_support_fraction)
     normal, anchor = found[0], found[1]  # refitted to its inliers by least squares
     normal = normal if normal @ up_hint >= 0 else -normal
     e1 = np.cross([0.0, 1.0, 0.0], normal)  # world +x when the normal is +z
@@ -243,7 +249,7 @@ def discover(
     up_hint = cam_to_world[:, :3, 1].mean(0)
     try:
         plane = support_plane(points, up_hint, cfg)
-    except NoSupportPlane:
+    except NoSupportPlane as fine:
         if cfg.rough_factor == 1:
             raise
         cfg = replace(
@@ -251,7 +257,10 @@ def discover(
             inlier_m=cfg.inlier_m * cfg.rough_factor,
             above_m=cfg.above_m * cfg.rough_factor,
         )
-        plane = support_plane(points, up_hint, cfg)
+        try:
+            plane = support_plane(points, up_hint, cfg)
+        except NoSupportPlane as rough:  # say what both looks found
+            raise NoSupportPlane(fine.looks + rough.looks, cfg.min_support_fraction) from None
     local = plane.local(points)
     labels = cluster_objects(local, cfg)
     instances: list[Instance] = []

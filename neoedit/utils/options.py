@@ -63,6 +63,10 @@ POSITIVE = frozenset(
 )
 """Options for which zero means nothing (a rate, a size, a count of work)."""
 
+OWN_BOUNDS = frozenset({"max_steps"})
+"""Options whose bounds depend on others, checked by their command alone (``--max-steps``:
+at least 1, or 0 with ``--resume``), so that -1 and 0 get the same message."""
+
 _UNIT = re.compile(r"(fraction|quantile|share|decay|opacity|focus|similarity)$")
 
 
@@ -94,6 +98,8 @@ def _number(value: Any) -> bool:
 def _check_number(name: str, value: Any, default: Any, where: str) -> None:
     if not math.isfinite(value):
         raise NeoError(f"{where} must be a finite number, got {value}")
+    if name in OWN_BOUNDS:
+        return
     check_bound(name, value, where)
     if name in POSITIVE and value <= 0:
         raise NeoError(f"{where} must be > 0, got {value}")
