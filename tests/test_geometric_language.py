@@ -155,6 +155,9 @@ def test_no_support_plane_is_a_clear_error():
     with pytest.raises(NeoError, match="no support plane") as e:
         discover(pts, np.zeros((3000, 3), np.uint8), _cameras(), GeometricConfig())
     assert "within 6 mm and" in str(e.value) and "within 12 mm of" in str(e.value)  # both looks
+    import pickle  # it crosses process boundaries (the bench's workers)
+
+    assert str(pickle.loads(pickle.dumps(e.value))) == str(e.value)
 
 
 def test_a_rough_support_is_found_with_a_wider_tolerance():

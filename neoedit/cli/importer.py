@@ -14,7 +14,7 @@ from rich.markup import escape
 
 from neoedit.data.capture import Capture
 from neoedit.data.importer import ImportConfig, ImportReport, import_capture
-from neoedit.data.orient import OrientConfig
+from neoedit.data.orient import MIN_PLANE_POINTS, OrientConfig
 from neoedit.data.pieces import PieceCheckConfig
 from neoedit.data.sfm import SfMConfig
 from neoedit.errors import DataError, NeoError
@@ -84,13 +84,14 @@ class ImportLLFFCommand(_ImportBase):
     point triangulation; 25 s for spinnerf_1's 100 photos) and level the scene on their
     support plane. Without them up is the cameras' mean up, tilted back by how far the
     photos look down, and yaw-only query boxes fit the tilted objects badly (spinnerf_1:
-    "box" matched nothing; levelled: found, IoU 0.70 with the masks' box). When it fails
-    (too few features), the import goes on with the cameras' mean up and says so."""
+    "box" matched nothing; levelled: found, IoU 0.75 with the masks' box). When it fails
+    or gives too few points for a plane, the import goes on with the cameras' mean up and
+    says so."""
     sparse_depth: bool = False
     """Write each photo's sparse depth from the triangulated points (depth/*.png). Off for
     LLFF: from a forward-facing capture's narrow baseline they are too noisy to help
-    (spinnerf_1, 5 min with the room: removal 18.80 -> 19.55 dB with them, 19.09 -> 20.97
-    without; benchmarks/RESULTS.md)."""
+    (spinnerf_1, 5 min with the room, runs of two sessions: removal 18.80 -> 19.55 dB with
+    them at 926 steps, 19.22 -> 21.04 without at 1,369; benchmarks/RESULTS.md)."""
 
     def read(self) -> Capture:
         from neoedit.data.llff import read_llff
@@ -110,7 +111,14 @@ class ImportLLFFCommand(_ImportBase):
                 highlight=False,
             )
             return capture
-        Console().print(f"triangulation: {len(capture.points)} sparse points")
+        if len(capture.points) < MIN_PLANE_POINTS:
+            Console(stderr=True).print(
+                f"[yellow]warning:[/] triangulation gave {len(capture.points)} sparse points, "
+                f"too few for a support plane (< {MIN_PLANE_POINTS}); up is the cameras' mean up",
+                highlight=False,
+            )
+        else:
+            Console().print(f"triangulation: {len(capture.points)} sparse points")
         return capture
 
 

@@ -51,7 +51,7 @@ class OrientConfig:
     floor)."""
     max_plane_tilt_forward_deg: float = 60.0
     """The same limit when up is only the cameras' mean up axis (no ring: a forward-facing
-    capture), which leans back by as much as the photos look down (spinnerf_1: 25 deg); a
+    capture), which leans back by as much as the photos look down (spinnerf_1: 46 deg); a
     wall facing the cameras is still ~90 deg from it."""
     box_extent: float = 1.5
     """Horizontal half-size of the box as a multiple of the cameras' median distance from
@@ -120,6 +120,10 @@ def look_centre(capture: Capture) -> np.ndarray:
     return origins.mean(0) + ahead * max(depth, 1e-6)
 
 
+MIN_PLANE_POINTS = 50
+"""Sparse points near the look centre a support plane is fitted to, at least."""
+
+
 def _camera_up(capture: Capture) -> tuple[np.ndarray, str]:
     """Up from the cameras alone: the normal of the plane of their centres when they circle
     the object (a walk around it at one height), else their mean up axis."""
@@ -140,7 +144,7 @@ def _support(
     """(up, height of the support surface along up, how up was found)."""
     ref, ref_source = _camera_up(capture)
     pts = capture.points[np.linalg.norm(capture.points - centre, axis=1) < 1.5 * distance]
-    if len(pts) >= 50:
+    if len(pts) >= MIN_PLANE_POINTS:
         ring = ref_source.startswith("plane")
         plane = fit_plane(
             pts,

@@ -2,8 +2,8 @@
 ``poses_bounds.npy``): SIFT features, matches, and COLMAP's point triangulation with every
 pose held fixed (pycolmap). The points are what a COLMAP model would have given: the import
 levels the scene on their support plane (without them, up is the cameras' mean up axis,
-tilted by however far the photographer looked down: 25 deg on spinnerf_1) and writes their
-depths as the sparse depth prior of ``neo train``."""
+tilted by however far the photographer looked down: the levelled spinnerf_1's cameras look
+46 deg down) and can write their depths as the sparse depth prior of ``neo train``."""
 
 from __future__ import annotations
 

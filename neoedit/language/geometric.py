@@ -56,7 +56,10 @@ class NoSupportPlane(NeoError):
             f"largest plane holds {held} of the surface points, < {100 * needed:.0f} %; "
             "train with --skip-language, or give a teacher (--language.clip-path)"
         )
-        self.looks = looks
+        self.looks, self.needed = looks, needed
+
+    def __reduce__(self):  # noqa: ANN204 -- pickled across processes (the bench's workers)
+        return (type(self), (self.looks, self.needed))
 
 
 @dataclass

@@ -174,7 +174,7 @@ def estimate_up(
     if points_m is not None:
         z = np.array([0.0, 0.0, 1.0])
         looks = [inlier_m]
-        if not _up_ok(cam_up):
+        if not _up_ok(cam_up) and rough_factor != 1:
             looks.append(inlier_m * rough_factor)
         for tol in looks:
             plane = dominant_plane(points_m, tol, iterations, seed, z, max_tilt_deg)
@@ -190,11 +190,15 @@ def _tilt_deg(up: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip(up[2], -1.0, 1.0))))
 
 
-def _up_ok(up: np.ndarray, max_angle_deg: float = 30.0) -> bool:
+MAX_UP_TILT_DEG = 30.0
+"""Yaw-only boxes are refused in a scene whose up is further than this from +z."""
+
+
+def _up_ok(up: np.ndarray, max_angle_deg: float = MAX_UP_TILT_DEG) -> bool:
     return _tilt_deg(up) <= max_angle_deg
 
 
-def check_up(up: np.ndarray, max_angle_deg: float = 30.0) -> None:
+def check_up(up: np.ndarray, max_angle_deg: float = MAX_UP_TILT_DEG) -> None:
     angle = _tilt_deg(up)
     if not _up_ok(up, max_angle_deg):
         raise NeoError(
