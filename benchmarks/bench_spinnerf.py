@@ -180,7 +180,7 @@ def main() -> None:
         "--train-arg",
         action="append",
         default=[],
-        help="one more option of neo train (repeat: --train-arg=--opacity-entropy-weight=0.01)",
+        help="one more option of neo train (repeat: --train-arg=--photo-appearance=True)",
     )
     ap.add_argument(
         "--import-arg",

@@ -345,8 +345,9 @@ def test_estimate_up_finds_a_rough_floor_with_a_second_look(sim_root: Path):
 
 
 def test_a_tilted_scene_is_refused_with_the_way_to_level_it():
-    """spinnerf_1 imported with --no-triangulate: its bench 41 deg from +z; yaw-only boxes
-    cannot fit it, and the message says how to import it level."""
+    """A scene whose up is 41 deg from +z (spinnerf_1's bench when imported with
+    --no-triangulate): yaw-only boxes cannot fit it, and the message says how to import it
+    level."""
     from neoedit.language.localize import check_up
 
     check_up(np.array([np.sin(np.radians(29.0)), 0.0, np.cos(np.radians(29.0))]))

@@ -105,21 +105,24 @@ class ImportLLFFCommand(_ImportBase):
             with work_directory(self.out) as work:
                 capture = triangulate(capture, work)
         except DataError as e:
-            Console(stderr=True).print(
-                f"[yellow]warning:[/] {escape(str(e))}; up is the cameras' mean up "
-                "(--no-triangulate skips the attempt)",
-                highlight=False,
-            )
+            _cameras_up(str(e), " (--no-triangulate skips the attempt)")
             return capture
         if len(capture.points) < MIN_PLANE_POINTS:
-            Console(stderr=True).print(
-                f"[yellow]warning:[/] triangulation gave {len(capture.points)} sparse points, "
-                f"too few for a support plane (< {MIN_PLANE_POINTS}); up is the cameras' mean up",
-                highlight=False,
+            _cameras_up(
+                f"triangulation gave {len(capture.points)} sparse points, too few for a "
+                f"support plane (< {MIN_PLANE_POINTS})"
             )
         else:
             Console().print(f"triangulation: {len(capture.points)} sparse points")
         return capture
+
+
+def _cameras_up(why: str, hint: str = "") -> None:
+    """Warn that an LLFF import goes on levelled by the cameras' mean up, and why."""
+    Console(stderr=True).print(
+        f"[yellow]warning:[/] {escape(why)}; up is the cameras' mean up{escape(hint)}",
+        highlight=False,
+    )
 
 
 ImportCommands = Annotated[

@@ -174,7 +174,7 @@ def estimate_up(
     if points_m is not None:
         z = np.array([0.0, 0.0, 1.0])
         looks = [inlier_m]
-        if not _up_ok(cam_up) and rough_factor != 1:
+        if _tilt_deg(cam_up) > MAX_UP_TILT_DEG and rough_factor != 1:
             looks.append(inlier_m * rough_factor)
         for tol in looks:
             plane = dominant_plane(points_m, tol, iterations, seed, z, max_tilt_deg)
@@ -194,13 +194,9 @@ MAX_UP_TILT_DEG = 30.0
 """Yaw-only boxes are refused in a scene whose up is further than this from +z."""
 
 
-def _up_ok(up: np.ndarray, max_angle_deg: float = MAX_UP_TILT_DEG) -> bool:
-    return _tilt_deg(up) <= max_angle_deg
-
-
 def check_up(up: np.ndarray, max_angle_deg: float = MAX_UP_TILT_DEG) -> None:
     angle = _tilt_deg(up)
-    if not _up_ok(up, max_angle_deg):
+    if angle > max_angle_deg:
         raise NeoError(
             f"the scene's up direction is {angle:.0f} deg from world +z; boxes are yaw-only about "
             "z, so orient the data z-up first: `neo import` / `neo process` level it on the "
