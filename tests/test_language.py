@@ -344,6 +344,38 @@ def test_estimate_up_finds_a_rough_floor_with_a_second_look(sim_root: Path):
     assert np.allclose(level, estimate_up(data.cameras)), level
 
 
+def test_data_levelled_at_import_falls_back_to_its_own_up(sim_root: Path, tmp_path: Path):
+    """No plane in the language's points and cameras looking 46 deg down: a dataset `neo
+    import` levelled on a measured plane keeps its +z (its transforms.json says how it was
+    levelled); any other falls back to the cameras' up, which check_up refuses."""
+    import json
+
+    from neoedit.data.orient import levelled_at_import
+    from neoedit.language.localize import check_up
+
+    data = load_scene_data(sim_root / "removal_1" / "pre")
+    down = np.radians(46.0)
+    pitch = np.eye(4)
+    pitch[1:3, 1:3] = [[np.cos(down), -np.sin(down)], [np.sin(down), np.cos(down)]]
+    looking_down = data.cameras.with_poses(pitch @ data.cameras.camera_to_world)
+    noise = np.random.default_rng(0).uniform(-0.3, 0.3, (1500, 3))
+    assert np.allclose(estimate_up(looking_down, noise, levelled=True), [0.0, 0.0, 1.0])
+    with pytest.raises(NeoError, match="up direction is 4[0-9] deg"):
+        check_up(estimate_up(looking_down, noise))
+    for source, levelled in (
+        ("support plane of the sparse points", True),
+        ("plane of the camera centres", True),
+        ("mean camera up", False),
+    ):
+        orientation = {"orientation": {"up_source": source}}
+        (tmp_path / "transforms.json").write_text(json.dumps({"neoedit_import": orientation}))
+        assert levelled_at_import(tmp_path) is levelled, source
+    (tmp_path / "transforms.json").write_text("{not json")
+    assert not levelled_at_import(tmp_path) and not levelled_at_import(
+        sim_root / "removal_1" / "pre"
+    )
+
+
 def test_a_tilted_scene_is_refused_with_the_way_to_level_it():
     """A scene whose up is 41 deg from +z (spinnerf_1's bench when imported with
     --no-triangulate): yaw-only boxes cannot fit it, and the message says how to import it

@@ -18,6 +18,7 @@ from neoedit.geometry import OrientedBox
 from neoedit.rendering import outside
 from neoedit.rendering.occupancy import OccupancyGrid
 from neoedit.rendering.outside import (
+    RoomMoments,
     outside_light,
     ray_sphere,
     room_domain,
@@ -115,6 +116,56 @@ def test_room_light_matches_a_brute_force_integral_in_front_of_and_behind_the_bo
     assert float(light.back_rgb[1].sub(env[1]).abs().max()) < 1e-5
 
 
+def test_the_box_room_distortion_terms_match_a_brute_force_double_sum():
+    """RoomMoments.box_distortion against sum_ij w_i w_j |x_i - x_j| over the pairs of one
+    box sample and one room sample, the whole ray's weights written out sample by sample."""
+    gen = torch.Generator().manual_seed(3)
+    n, m_room, m_box = 5, 7, 6
+    t_b = 1.0 + torch.rand(n, 1, generator=gen)
+    g0, span = torch.full((n, 1), 0.05), torch.full((n, 1), 2.5)
+    box_t = torch.sort(0.4 + 0.4 * torch.rand(n, m_box, generator=gen), -1).values
+    front_g = torch.sort(0.05 + 0.3 * torch.rand(n, m_room, generator=gen), -1).values
+    back_g = torch.sort(0.9 + 1.6 * torch.rand(n, m_room, generator=gen), -1).values
+    w_box = 0.15 * torch.rand(n, m_box, generator=gen)
+    w_front = 0.1 * torch.rand(n, m_room, generator=gen)
+    w_back = 0.12 * torch.rand(n, m_room, generator=gen)
+    trans = 1.0 - w_front.sum(-1)
+    x_front, x_back = (front_g - g0) / span, (back_g - g0) / span
+    x_box = (warp(box_t, t_b) - g0) / span
+    moments = RoomMoments(
+        w_front.sum(-1),
+        (w_front * x_front).sum(-1),
+        w_back.sum(-1),
+        (w_back * x_back).sum(-1),
+        t_b,
+        g0,
+        span,
+    )
+    got = moments.box_distortion(w_box, box_t, trans)
+    for r in range(n):
+        whole_box = trans[r] * w_box[r]
+        whole_back = trans[r] * (1.0 - w_box[r].sum()) * w_back[r]
+        want = 0.0
+        for i in range(m_box):
+            for w_j, x_j in [*zip(w_front[r], x_front[r]), *zip(whole_back, x_back[r])]:
+                want += 2.0 * float(whole_box[i] * w_j * (x_box[r, i] - x_j).abs())
+        assert abs(float(got[r]) - want) < 1e-6 * max(1.0, want)
+    assert bool((got > 0).all())
+
+
+def test_the_joint_distortion_pulls_light_split_between_box_and_room_into_one_of_them():
+    """A ray whose light is half in an object in the box and half in the room behind it
+    costs more than one whose light ends in either alone."""
+    t_b, g0, span = torch.ones(3, 1), torch.zeros(3, 1), torch.full((3, 1), 2.0)
+    box_t = torch.tensor([[0.5]]).expand(3, 1)
+    box_w = torch.tensor([[0.5], [1.0], [0.0]])
+    back_w = torch.tensor([1.0, 0.0, 1.0])  # behind the box, with its own transmittance
+    x_back = torch.full((3,), 0.9)
+    moments = RoomMoments(torch.zeros(3), torch.zeros(3), back_w, back_w * x_back, t_b, g0, span)
+    split, in_box, in_room = moments.box_distortion(box_w, box_t, torch.ones(3)).tolist()
+    assert split > 0.1 and in_box == 0.0 and in_room == 0.0
+
+
 def test_rays_the_box_stops_skip_the_room_only_where_none_of_it_can_show():
     """A camera inside the room's inner sphere sees no room in front of the box: on rays
     the box stops, the room is not sampled (nothing to add); the other rays get exactly the
@@ -192,6 +243,15 @@ def test_a_room_field_renders_the_same_in_both_renderers_and_learns_from_a_loss(
     (slow["rgb"].sum() + slow["outside_distortion"].sum()).backward()
     table = field.background_head.encoding.table.grad
     assert table is not None and float(table.abs().sum()) > 0
+    # coupled to the box's samples, the room's distortion loss only grows (its terms with
+    # the box are >= 0) and its gradient reaches the box's field
+    field.zero_grad()
+    field.background_head.cfg = dataclasses.replace(SMALL_ROOM, joint_distortion=1.0)
+    coupled = render_rays(field, grid, rays, TINY_RENDER, field.background_head)
+    apart = slow["outside_distortion"].detach()
+    assert bool((coupled["outside_distortion"].detach() >= apart - 1e-7).all())
+    coupled["outside_distortion"].sum().backward()
+    assert float(field.encoding.table.grad.abs().sum()) > 0
 
 
 def test_a_patch_does_not_copy_the_room():

@@ -12,7 +12,7 @@ from neoedit.data import load_scene_data
 from neoedit.errors import SpecError
 from neoedit.geometry import OrientedBox
 from neoedit.sim.run import simulate_scene
-from neoedit.sim.spec import scene_spec_from_dict
+from neoedit.sim.specfile import scene_spec_from_dict
 from neoedit.sim.suite import benchmark_scenes
 from tests.conftest import TINY_SCAN, tiny_scene
 
@@ -171,7 +171,7 @@ def test_missing_asset_leaves_no_partial_output(tmp_path: Path):
 
 
 def test_example_spec_is_valid():
-    from neoedit.sim.spec import load_scene_spec
+    from neoedit.sim.specfile import load_scene_spec
 
     spec = load_scene_spec(Path(__file__).parent.parent / "examples" / "demo_scene.yaml")
     assert spec.setup.name == "panda_wood" and [a.type for a in spec.actions] == ["remove"]

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -61,16 +63,7 @@ class RemoveCommand:
         from neoedit.edit.remove import Remove, write_report
         from neoedit.scene import save_scene
 
-        check_json_output(self.json, self.out, (self.scene, self.box, self.masks), self.overwrite)
-        with edit_lock(self.out):
-            scene = start_edit(
-                self.scene,
-                self.out,
-                (self.prompt, self.box, self.masks),
-                self.overwrite,
-                self.device,
-            )
-            boxes = find_boxes(scene, self.prompt, self.box, self.query, self.masks)
+        with edit_session(self, (self.scene, self.box, self.masks)) as (scene, boxes):
             removal = Remove(boxes, self.edit, self.prompt)
             child = apply_edit(scene, removal)
             save_scene(
@@ -84,6 +77,20 @@ class RemoveCommand:
             f"wrote {self.out} (version {child.meta.version_id}, parent {child.meta.parent}) in "
             f"{rec.seconds or 0:.1f} s; pictures in {self.out / 'report'}"
         )
+
+
+@contextlib.contextmanager
+def edit_session(
+    cmd: RemoveCommand | MoveCommand, inputs: tuple[Path | None, ...]
+) -> Iterator[tuple[Scene, list[OrientedBox]]]:
+    """What every edit command does before its edit, holding OUT's writer lock: its --json
+    output checked against ``inputs``, the scene loaded (:func:`start_edit`) and the
+    object's boxes found (by prompt, box file or masks)."""
+    check_json_output(cmd.json, cmd.out, inputs, cmd.overwrite)
+    with edit_lock(cmd.out):
+        target = (cmd.prompt, cmd.box, cmd.masks)
+        scene = start_edit(cmd.scene, cmd.out, target, cmd.overwrite, cmd.device)
+        yield scene, find_boxes(scene, cmd.prompt, cmd.box, cmd.query, cmd.masks)
 
 
 def start_edit(
@@ -226,16 +233,7 @@ class MoveCommand:
 
         transform = self.motion()
         inputs = (self.scene, self.box, self.masks, self.transform)
-        check_json_output(self.json, self.out, inputs, self.overwrite)
-        with edit_lock(self.out):
-            scene = start_edit(
-                self.scene,
-                self.out,
-                (self.prompt, self.box, self.masks),
-                self.overwrite,
-                self.device,
-            )
-            boxes = find_boxes(scene, self.prompt, self.box, self.query, self.masks)
+        with edit_session(self, inputs) as (scene, boxes):
             motions = [Motion(b, motion_for(b, transform)) for b in boxes]
             edit: Edit = (
                 SealMove(motions, self.seal3d, self.prompt)

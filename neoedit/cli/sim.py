@@ -14,7 +14,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from neoedit.errors import NeoError
-from neoedit.sim.spec import load_scene_spec
+from neoedit.sim.specfile import load_scene_spec
 from neoedit.sim.suite import benchmark_scenes
 from neoedit.utils.io import (
     atomic_write_json,

@@ -17,7 +17,9 @@ turns the model into a z-up metric frame:
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -82,6 +84,23 @@ class Orientation:
         }
 
 
+NOT_LEVELLED = "mean camera up"
+"""The ``up_source`` of an import that found nothing better than the cameras' mean up."""
+
+
+def levelled_at_import(root: Path) -> bool:
+    """Whether the dataset in folder ``root`` was levelled by ``neo import`` / ``neo
+    process`` on something measured (a support plane, a marker plane, the ring of camera
+    centres): its transforms.json says so, and then its +z is that up. False for any other
+    dataset, or one that cannot be read."""
+    try:
+        meta = json.loads((Path(root) / "transforms.json").read_text())
+        source = meta["neoedit_import"]["orientation"]["up_source"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return False
+    return isinstance(source, str) and source != NOT_LEVELLED
+
+
 def look_centre(capture: Capture) -> np.ndarray:
     """The point the cameras look at: the point closest (least squares) to all optical axes
     when it lies in front of nearly all cameras (a walk around an object); for a forward-
@@ -135,7 +154,7 @@ def _camera_up(capture: Capture) -> tuple[np.ndarray, str]:
         ring = axes[2] if axes[2] @ cam_up >= 0 else -axes[2]
         if spread[2] < 0.35 * spread[1] and ring @ cam_up > np.cos(np.radians(60)):
             return ring, "plane of the camera centres"
-    return cam_up, "mean camera up"
+    return cam_up, NOT_LEVELLED
 
 
 def _support(

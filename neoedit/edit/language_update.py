@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import copy
 import math
-import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -35,6 +34,7 @@ from neoedit.geometry.masks import box_pixels
 from neoedit.language.training import LanguageTrainConfig, fit_language
 from neoedit.rendering.surface import render_surface
 from neoedit.scene import Scene
+from neoedit.utils.timings import Timings
 
 
 @dataclass
@@ -190,34 +190,33 @@ def update_language(
     cfg = cfg or LanguageUpdateConfig()
     if parent.language is None or parent.surface_points_m is None:
         return {}
-    t0 = time.perf_counter()
-    boxes = [b.grown(cfg.margin_m) for b in [*edit.source, *(b for b, _ in edit.targets)]]
-    old = parent.surface_points_m
-    new_points = _edited_surface(parent, child, boxes, cfg)
-    kept = old[~points_in_boxes(old, boxes)]
-    query = composed_language_query(new_points, edit, cfg.ring_m)
-    gen = torch.Generator().manual_seed(cfg.seed)
-    n_hold = min(len(kept), max(len(new_points), 4 * cfg.batch))
-    hold = kept[torch.randperm(len(kept), generator=gen)[:n_hold].to(kept.device)]
-    points = torch.cat([new_points, hold])
-    targets, dino = _teacher_targets(parent.language, torch.cat([query, hold]))
-    # batches: edited_share from the edited points, the rest from the held ones
-    weights = torch.cat(
-        [
-            torch.full((len(new_points),), cfg.edited_share / max(len(new_points), 1)),
-            torch.full((len(hold),), (1 - cfg.edited_share) / max(len(hold), 1)),
-        ]
-    )
-    draw = torch.multinomial(weights, cfg.steps * cfg.batch, replacement=True, generator=gen)
-    student = copy.deepcopy(parent.language).requires_grad_(True)
-    train_cfg = LanguageTrainConfig(steps=cfg.steps, batch=cfg.batch, lr=cfg.lr, seed=cfg.seed)
-    loss = fit_language(
-        student, points, targets, dino, draw, train_cfg, gen, label="language update"
-    )
-    child.language = student.requires_grad_(False)
-    child.surface_points_m = torch.cat([kept, new_points])
-    return {
-        "language_s": round(time.perf_counter() - t0, 2),
-        "language_loss": round(loss, 5),
-        "new_points": len(new_points),
-    }
+    timings = Timings()
+    with timings.stage("language"):
+        boxes = [b.grown(cfg.margin_m) for b in [*edit.source, *(b for b, _ in edit.targets)]]
+        old = parent.surface_points_m
+        new_points = _edited_surface(parent, child, boxes, cfg)
+        kept = old[~points_in_boxes(old, boxes)]
+        query = composed_language_query(new_points, edit, cfg.ring_m)
+        gen = torch.Generator().manual_seed(cfg.seed)
+        n_hold = min(len(kept), max(len(new_points), 4 * cfg.batch))
+        hold = kept[torch.randperm(len(kept), generator=gen)[:n_hold].to(kept.device)]
+        points = torch.cat([new_points, hold])
+        targets, dino = _teacher_targets(parent.language, torch.cat([query, hold]))
+        # batches: edited_share from the edited points, the rest from the held ones
+        weights = torch.cat(
+            [
+                torch.full((len(new_points),), cfg.edited_share / max(len(new_points), 1)),
+                torch.full((len(hold),), (1 - cfg.edited_share) / max(len(hold), 1)),
+            ]
+        )
+        draw = torch.multinomial(weights, cfg.steps * cfg.batch, replacement=True, generator=gen)
+        student = copy.deepcopy(parent.language).requires_grad_(True)
+        train_cfg = LanguageTrainConfig(steps=cfg.steps, batch=cfg.batch, lr=cfg.lr, seed=cfg.seed)
+        loss = fit_language(
+            student, points, targets, dino, draw, train_cfg, gen, label="language update"
+        )
+        child.language = student.requires_grad_(False)
+        child.surface_points_m = torch.cat([kept, new_points])
+    timings["language_loss"] = round(loss, 5)
+    timings["new_points"] = len(new_points)
+    return timings

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-import time
 
 import numpy as np
 
@@ -21,6 +20,7 @@ from neoedit.fields.suppressed import SuppressedField
 from neoedit.geometry import OrientedBox
 from neoedit.rendering.occupancy import cells_in_boxes, refresh_grid
 from neoedit.scene import Scene
+from neoedit.utils.timings import Timings
 
 
 def pending_boxes(scene: Scene) -> list[OrientedBox]:
@@ -37,25 +37,26 @@ def settle(scene: Scene, cfg: DistillConfig | None = None) -> dict[str, float]:
     boxes = pending_boxes(scene)
     if not boxes:
         return {}
-    t = time.perf_counter()
-    # the patch is the field, bit for bit, outside the pending boxes: only rays through them teach
-    cfg = dataclasses.replace(cfg or DistillConfig(), local_rows=False, regions_only=True)
-    shown = Scene(copy.deepcopy(scene.field), scene.grid, scene.meta)
-    view, cut = shown.renderable()  # built now: clearing the records below does not change it
-    teacher = SuppressedField(view, cut) if cut else view  # a cut box shows nothing
-    teacher_grid = copy.deepcopy(scene.grid)
-    scene.meta.moves, scene.meta.cut_boxes, scene.meta.suppress_boxes = [], [], []
-    cameras, _, split = scene.scan_cameras()
-    scan = cameras.subset(split.get("train", np.arange(len(cameras))))
-    device = scene.field.aabb.device
-    pool = RayPool(scan, None, boxes, device, cfg.seed)
-    patch = scene.patched().add_patch(boxes)
-    distill(
-        patch, teacher_grid, teacher, teacher_grid, pool, boxes,
-        scene.meta.render, scene.background, cfg, view=scene.field,
-    )  # fmt: skip
-    refresh_grid(scene.grid, scene.field.density, cells_in_boxes(scene.grid, boxes))
-    return {"settle_s": round(time.perf_counter() - t, 2)}
+    timings = Timings()
+    with timings.stage("settle"):
+        # the patch is the field, bit for bit, outside the pending boxes: only rays through them teach
+        cfg = dataclasses.replace(cfg or DistillConfig(), local_rows=False, regions_only=True)
+        shown = Scene(copy.deepcopy(scene.field), scene.grid, scene.meta)
+        view, cut = shown.renderable()  # built now: clearing the records below does not change it
+        teacher = SuppressedField(view, cut) if cut else view  # a cut box shows nothing
+        teacher_grid = copy.deepcopy(scene.grid)
+        scene.meta.moves, scene.meta.cut_boxes, scene.meta.suppress_boxes = [], [], []
+        cameras, _, split = scene.scan_cameras()
+        scan = cameras.subset(split.get("train", np.arange(len(cameras))))
+        device = scene.field.aabb.device
+        pool = RayPool(scan, None, boxes, device, cfg.seed)
+        patch = scene.patched().add_patch(boxes)
+        distill(
+            patch, teacher_grid, teacher, teacher_grid, pool, boxes,
+            scene.meta.render, scene.background, cfg, view=scene.field,
+        )  # fmt: skip
+        refresh_grid(scene.grid, scene.field.density, cells_in_boxes(scene.grid, boxes))
+    return timings
 
 
 def settled_start(

@@ -157,6 +157,7 @@ def estimate_up(
     seed: int = 0,
     max_tilt_deg: float = 45.0,
     rough_factor: float = 2.0,
+    levelled: bool = False,
 ) -> np.ndarray:
     """Unit up vector (3,): normal of the dominant plane of ``points_m`` (RANSAC) among the
     planes within ``max_tilt_deg`` of world +z (the data's up after import), oriented like
@@ -168,7 +169,10 @@ def estimate_up(
     46 deg), one more look for the support is taken at ``rough_factor`` times ``inlier_m``
     (a support reconstructed from photos is not flat to 5 mm: spinnerf_1's bench holds 16 %
     of the points within 5 mm, 27 % within 10 mm). Where the cameras' up would pass, it
-    stays the fallback: on tiny or briefly trained fields a rough plane is the less exact."""
+    stays the fallback: on tiny or briefly trained fields a rough plane is the less exact.
+    ``levelled``: the data's +z is already a measured up (``neo import`` / ``neo process``
+    levelled it on a support plane, marker plane or camera ring: :func:`levelled_at_import`),
+    so +z, not the cameras' up, is the fallback."""
     cam_up = camera_up(cameras)
     plane = None
     if points_m is not None:
@@ -181,7 +185,7 @@ def estimate_up(
             if plane is not None and plane[2] >= min_inlier_fraction:
                 break
     if plane is None or plane[2] < min_inlier_fraction:
-        return cam_up
+        return np.array([0.0, 0.0, 1.0]) if levelled else cam_up
     n = plane[0]
     return n if n @ cam_up >= 0 else -n
 

@@ -20,6 +20,7 @@ from rich.markup import escape
 
 from neoedit.cameras.rays import CameraTensors
 from neoedit.data import SceneData
+from neoedit.data.orient import levelled_at_import
 from neoedit.errors import NeoError
 from neoedit.fields.language import LanguageField, LanguageFieldConfig
 from neoedit.language.geometric import GeometricConfig, GeometricTeacher, NoSupportPlane
@@ -230,7 +231,12 @@ def train_language(scene: Scene, data: SceneData, cfg: LanguageTrainConfig) -> S
         steps=cfg.steps,
         seconds=round(time.perf_counter() - t0, 2),
         loss=round(float(loss_ema or 0.0), 5),
-        up=[round(float(c), 5) for c in estimate_up(data.cameras, points.numpy())],
+        up=[
+            round(float(c), 5)
+            for c in estimate_up(
+                data.cameras, points.numpy(), levelled=levelled_at_import(data.root)
+            )
+        ],
         cloud_rays_per_pixel=float(f"{rays_per_pixel:.6g}"),
     )
     return scene

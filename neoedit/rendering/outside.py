@@ -38,15 +38,50 @@ def unwarp(g: torch.Tensor, t_b: torch.Tensor) -> torch.Tensor:
 
 
 @dataclass
+class RoomMoments:
+    """What the distortion loss needs of the room's samples on each ray to weigh them
+    against the box's: the summed weights (N,) in front of and behind the box, those
+    weights' sums times the samples' positions x (N,), and how a ray distance t maps to x
+    (``x = (warp(t, t_b) - g0) / span``, all (N,1): the warped distance, 0 to 1 over the ray);
+    ``weight`` scales the terms (:attr:`~neoedit.fields.room.RoomConfig.joint_distortion`)."""
+
+    front_w: torch.Tensor
+    front_wx: torch.Tensor
+    back_w: torch.Tensor
+    back_wx: torch.Tensor
+    t_b: torch.Tensor
+    g0: torch.Tensor
+    span: torch.Tensor
+    weight: float = 1.0
+
+    def box_distortion(
+        self, weights: torch.Tensor, t_mid: torch.Tensor, front_trans: torch.Tensor
+    ) -> torch.Tensor:
+        """(N,) the distortion loss's terms between the box's samples (``weights`` (N,M) of
+        the box alone, at ray distances ``t_mid``) and the room's, with each part's weight
+        on the whole ray (box: ``front_trans`` times its own; room behind: that times the
+        light the box lets through). Every room sample in front lies before every box
+        sample and every one behind lies after, so ``sum_ij w_i w_j |x_i - x_j|`` splits
+        into sums of weights and of weights times positions."""
+        x = (warp(t_mid, self.t_b) - self.g0) / self.span
+        a, ax = weights.sum(-1), (weights * x).sum(-1)
+        front = self.front_w * ax - a * self.front_wx
+        back = (1.0 - a) * front_trans * (a * self.back_wx - self.back_w * ax)
+        return 2.0 * self.weight * front_trans * (front + back)
+
+
+@dataclass
 class OutsideLight:
     """What lies outside the box's segment of rays: the premultiplied colour (N,3) in front
     of the box and the fraction (N,) of the box it lets through, the colour (N,3) or (3,)
-    arriving from behind the box, and the room's distortion loss (N,) when there is a room."""
+    arriving from behind the box, and, for a room in training, its distortion loss (N,) and
+    the :class:`RoomMoments` that couple it to the box's."""
 
     front_rgb: torch.Tensor | float
     front_trans: torch.Tensor | float
     back_rgb: torch.Tensor
     distortion: torch.Tensor | None = None
+    moments: RoomMoments | None = None
 
     def around(self, box_rgb: torch.Tensor) -> torch.Tensor:
         """Whole-ray colours (N,3): the light in front composited over ``box_rgb`` (the box's
@@ -163,14 +198,31 @@ def room_light(
     w_front, w_back = _split_weights(sigma * deltas, front)
     beyond = torch.exp(-tau_back.sum(-1))
     back_rgb = (w_back[..., None] * rgb).sum(1) + beyond[:, None] * room.environment(d)
-    distortion = None
+    distortion, moments = None, None
     if torch.is_grad_enabled():
         scale = total.clamp_min(1e-9)[:, None]
         w_all = render_weights(sigma, deltas)
         distortion = distortion_loss(w_all, fine[:, :-1] / scale, fine[:, 1:] / scale)
+        if room.cfg.joint_distortion > 0:
+            moments = _moments(w_front, w_back, g_mid, intervals, t_b, room.cfg.joint_distortion)
     return OutsideLight(
-        (w_front[..., None] * rgb).sum(1), torch.exp(-tau_front.sum(-1)), back_rgb, distortion
+        (w_front[..., None] * rgb).sum(1),
+        torch.exp(-tau_front.sum(-1)),
+        back_rgb,
+        distortion,
+        moments,
     )
+
+
+def _moments(w_front, w_back, g_mid, intervals: RayIntervals, t_b, weight) -> RoomMoments:
+    """The room's side of :meth:`RoomMoments.box_distortion` (its result times ``weight``)."""
+    g0 = intervals.starts[:, :1]
+    span = (intervals.ends[:, -1:] - g0).clamp_min(1e-9)
+    x = (g_mid - g0) / span
+    return RoomMoments(
+        w_front.sum(-1), (w_front * x).sum(-1), w_back.sum(-1), (w_back * x).sum(-1), t_b, g0, span,
+        weight,
+    )  # fmt: skip
 
 
 def outside_light(

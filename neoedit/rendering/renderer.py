@@ -162,7 +162,8 @@ def render_rays(
 ) -> dict[str, torch.Tensor]:
     """rgb (N,3), depth (N,) ray distance [m], depth_z (N,) z-depth [m], accumulation (N,),
     weights (N,M) and the samples (depth and accumulation are the box's; a room background
-    adds its distortion loss (N,) as ``outside_distortion``). With a grid, samples in empty cells skip the network.
+    in training adds its distortion loss (N,) as ``outside_distortion``: the room's own and,
+    with ``joint_distortion``, its terms with the box's samples). With a grid, samples in empty cells skip the network.
     ``intervals``: the domain to sample instead of each ray's valid one."""
     samples = sample_rays(field, grid, rays, cfg, boxes, jitter, generator, intervals)
     n, m = samples.t_mid.shape
@@ -181,6 +182,11 @@ def render_rays(
     out["rgb"] = light.around(out["rgb"])
     if light.distortion is not None:
         out["outside_distortion"] = light.distortion
+        if light.moments is not None:
+            trans = torch.as_tensor(light.front_trans, dtype=weights.dtype)
+            out["outside_distortion"] = out["outside_distortion"] + light.moments.box_distortion(
+                weights, samples.t_mid, trans
+            )
     out["depth_z"] = out["depth"] * rays.z_scale
     out["weights"] = weights
     lo, hi = samples.bin_bounds()

@@ -281,7 +281,7 @@ def _names(world: SimWorld, bodies: set[int]) -> str:
 def _scene_action(scene_dir: Path, action: int) -> tuple[SceneSpec, ActionSpec, np.ndarray]:
     """(spec, the move, its world transform) of action ``action`` (1-based) of a NEO-Sim
     scene folder; a clear error for anything else."""
-    from neoedit.sim.spec import scene_spec_from_dict
+    from neoedit.sim.specfile import scene_spec_from_dict
 
     meta = read_data_file(Path(scene_dir) / "scene.json", "NEO-Sim scene record")
     if not isinstance(meta, dict) or "spec" not in meta:
