@@ -58,7 +58,7 @@ from neoedit.sim.execute import (
     reach_error,
     reachable_first,
 )
-from neoedit.sim.spec import scene_spec_from_dict
+from neoedit.sim.specfile import scene_spec_from_dict
 from neoedit.sim.world import SimWorld
 from neoedit.utils.io import write_png
 from neoedit.viz.boxes import draw_box

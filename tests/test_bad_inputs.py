@@ -246,6 +246,7 @@ CASES = [
     C("remove-box-negative-size", "remove {scene} --box bad.json --out v", 2, "size must be positive", write("bad.json", {"center": [0, 0, 0], "size": [-1, 1, 1]})),
     C("remove-box-missing", "remove {scene} --box nope.json --out v", 2, "box file not found"),
     C("remove-prompt-and-box", "remove {scene} mug --box mug.json --out v", 2, "not two", MUG),
+    C("remove-no-target", "remove {scene} --out v", 2, "none was given"),
     C("remove-masks-not-a-folder", "remove {scene} --masks mug.json --out v", 2, "not a folder", MUG),
     C("remove-masks-unmatched", "remove {scene} --masks m --out v --no-inpaint", 2, "no mask is named after a photo", write("m/unrelated.png", b"")),
     # 11. scene.json

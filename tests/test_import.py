@@ -616,3 +616,28 @@ def test_a_forward_facing_look_centre_lies_where_the_photos_see_something(meet, 
     centre = look_centre(capture)
     assert abs(centre[0]) < 1e-6 and abs(centre[2]) < 1e-6  # straight ahead of the cameras
     assert centre[1] == pytest.approx(expected, abs=1e-3)
+
+
+def test_a_moved_copy_forgets_how_its_old_frame_was_levelled(sim_root: Path, tmp_path: Path):
+    """`neo register` writes the scan moved into another frame: the import's note that its
+    +z is a measured up (which the query trusts) describes the old frame and is dropped."""
+    import shutil
+
+    from neoedit.data.orient import levelled_at_import
+    from neoedit.data.register import write_moved
+
+    src = tmp_path / "src"
+    shutil.copytree(sim_root / "removal_1" / "pre", src)
+    meta = json.loads((src / "transforms.json").read_text())
+    meta["neoedit_import"] = {
+        "photos": 13,
+        "orientation": {"up_source": "support plane of the sparse points"},
+    }
+    (src / "transforms.json").write_text(json.dumps(meta))
+    assert levelled_at_import(src)
+    tilt = np.eye(4)
+    tilt[:3, :3] = [[1.0, 0.0, 0.0], [0.0, 0.8, -0.6], [0.0, 0.6, 0.8]]
+    write_moved(src, tilt, tmp_path / "moved")
+    moved = json.loads((tmp_path / "moved" / "transforms.json").read_text())
+    assert moved["neoedit_import"] == {"photos": 13}
+    assert not levelled_at_import(tmp_path / "moved")

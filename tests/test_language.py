@@ -362,10 +362,12 @@ def test_data_levelled_at_import_falls_back_to_its_own_up(sim_root: Path, tmp_pa
     assert np.allclose(estimate_up(looking_down, noise, levelled=True), [0.0, 0.0, 1.0])
     with pytest.raises(NeoError, match="up direction is 4[0-9] deg"):
         check_up(estimate_up(looking_down, noise))
-    for source, levelled in (
+    for source, levelled in (  # as neoedit.data.orient writes them
         ("support plane of the sparse points", True),
-        ("plane of the camera centres", True),
-        ("mean camera up", False),
+        ("plane of the camera centres; floor at the lowest points", True),
+        ("ArUco marker plane", True),
+        ("mean camera up; floor at the lowest points", False),
+        ("mean camera up; no points: origin at the look centre", False),
     ):
         orientation = {"orientation": {"up_source": source}}
         (tmp_path / "transforms.json").write_text(json.dumps({"neoedit_import": orientation}))

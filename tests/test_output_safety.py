@@ -307,6 +307,16 @@ def test_markup_in_a_path_is_printed_as_text(sim_root, tmp_path, capsys):
     assert out.count("scan [x] [/]") == 2, out  # the header and the `neo train` line
 
 
+def test_markup_in_an_output_path_is_printed_as_text(sim_root, tmp_path, capsys):
+    """The third probe: `neo train --out 'T[/]9'` wrote the scene, then its "wrote" line
+    raised MarkupError (exit 1); `[red]y[/red]` lost its brackets."""
+    out = tmp_path / "T [red]y[/red] [/]"
+    argv = ["train", sim_root / "removal_1" / "pre", "--out", out, "--max-steps", "2"]
+    res = run_neo([*argv, "--skip-language", "--eval-every", "0"], capsys)
+    assert res.code == 0 and res.traceback is None, res
+    assert f"wrote {out}" in " ".join(res.out.split())
+
+
 def test_input_scene_is_untouched_by_every_refusal_and_success(golden, tmp_path, capsys):
     """The input scene stays byte-identical through renders, evaluations and edits."""
     ws = make_workspace(tmp_path / "ws", *golden)

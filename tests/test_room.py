@@ -147,7 +147,11 @@ def test_the_box_room_distortion_terms_match_a_brute_force_double_sum():
         whole_back = trans[r] * (1.0 - w_box[r].sum()) * w_back[r]
         want = 0.0
         for i in range(m_box):
-            for w_j, x_j in [*zip(w_front[r], x_front[r]), *zip(whole_back, x_back[r])]:
+            pairs = [
+                *zip(w_front[r], x_front[r], strict=True),
+                *zip(whole_back, x_back[r], strict=True),
+            ]
+            for w_j, x_j in pairs:
                 want += 2.0 * float(whole_box[i] * w_j * (x_box[r, i] - x_j).abs())
         assert abs(float(got[r]) - want) < 1e-6 * max(1.0, want)
     assert bool((got > 0).all())

@@ -66,7 +66,8 @@ class BenchCommand:
         console.print(
             f"{summary['units']} units: {summary['ran']} run, {summary['cached']} cached, "
             f"{len(summary['refused'])} refused, {len(summary['failed'])} failed, "
-            f"{summary['seconds']} s -> {self.out / 'REPORT.md'}"
+            f"{summary['seconds']} s -> {self.out / 'REPORT.md'}",
+            markup=False,
         )
         if summary["refused"]:
             console.print(f"[yellow]refused (see REPORT.md):[/] {', '.join(summary['refused'])}")

@@ -75,7 +75,8 @@ class RemoveCommand:
         rec = child.meta.edits[-1]
         console.print(
             f"wrote {self.out} (version {child.meta.version_id}, parent {child.meta.parent}) in "
-            f"{rec.seconds or 0:.1f} s; pictures in {self.out / 'report'}"
+            f"{rec.seconds or 0:.1f} s; pictures in {self.out / 'report'}",
+            markup=False,
         )
 
 
@@ -107,9 +108,11 @@ def start_edit(
     from neoedit.scene import load_scene
     from neoedit.utils.device import resolve_device
 
-    if sum(t is not None for t in target) != 1:
+    given = sum(t is not None for t in target)
+    if given != 1:
         raise NeoError(
-            'give one of a prompt ("red mug"), --box BOX.json or --masks FOLDER, not two'
+            'give one of a prompt ("red mug"), --box BOX.json or --masks FOLDER'
+            + (", not two" if given > 1 else ": none was given")
         )
     if target[2] is not None and not Path(target[2]).is_dir():
         raise NeoError(f"--masks {target[2]}: not a folder")  # before the scene loads
@@ -250,7 +253,8 @@ class MoveCommand:
         rec = child.meta.edits[-1]
         console.print(
             f"wrote {self.out} ({rec.method}, version {child.meta.version_id}, parent "
-            f"{child.meta.parent}) in {rec.seconds or 0:.1f} s; pictures in {self.out / 'report'}"
+            f"{child.meta.parent}) in {rec.seconds or 0:.1f} s; pictures in {self.out / 'report'}",
+            markup=False,
         )
 
     def motion(self) -> np.ndarray | tuple[np.ndarray, float]:

@@ -70,7 +70,8 @@ class TrainCommand:
         last = scene.meta.history[-1] if scene.meta.history else {}
         console.print(
             f"wrote {self.out}: {scene.meta.step} steps in {scene.meta.train_seconds:.1f} s "
-            f"({last.get('rays_per_s', 0) / 1e3:.1f}k rays/s), train PSNR {last.get('train_psnr')} dB, held-out PSNR {last.get('eval_psnr')} dB"
+            f"({last.get('rays_per_s', 0) / 1e3:.1f}k rays/s), train PSNR {last.get('train_psnr')} dB, held-out PSNR {last.get('eval_psnr')} dB",
+            markup=False,
         )
         lang = scene.meta.language
         if lang is not None:

@@ -89,7 +89,7 @@ class GraspCommand:
         seconds = time.perf_counter() - t0
         if not grasps:
             console.print(
-                f"[bold red]no collision-free grasp of {self.prompt or 'the box'} "
+                f"[bold red]no collision-free grasp of {escape(self.prompt or 'the box')} "
                 f"(planned in {seconds:.1f} s): the object may be wider than the "
                 f"{self.grasp.gripper.max_width_m * 100:.0f} cm opening, or boxed in[/]"
             )

@@ -116,7 +116,8 @@ class PlanCommand:
             result = {"out": str(self.out), "plan_png": str(self.out / "plan.png"), "steps": steps}
             atomic_write_json(self.json, result)
         console.print(
-            f"wrote {self.out} ({len(names)} versions); pictures in {self.out / 'plan.png'}"
+            f"wrote {self.out} ({len(names)} versions); pictures in {self.out / 'plan.png'}",
+            markup=False,
         )
 
     def _strip(self, columns: list[list[list[np.ndarray]]], names: list[str]) -> None:

@@ -65,7 +65,8 @@ class SimSceneCommand:
         summary = simulate_scene(spec, self.out, self.spec.parent, self.objects_dir, self.overwrite)
         console.print(
             f"wrote {self.out} ({', '.join(summary['scans'])}) in {summary['seconds']:.1f} s, "
-            f"{_dir_size_mb(self.out):.1f} MB"
+            f"{_dir_size_mb(self.out):.1f} MB",
+            markup=False,
         )
 
 

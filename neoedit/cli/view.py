@@ -70,7 +70,7 @@ class ViewCommand:
         )
         if self.host not in LOCAL_HOSTS:
             console.print(
-                f"[yellow]warning:[/] serving on {self.host}: anyone who can reach this "
+                f"[yellow]warning:[/] serving on {escape(self.host)}: anyone who can reach this "
                 "machine can view and edit the scene (there is no login)"
             )
 

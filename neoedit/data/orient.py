@@ -98,7 +98,8 @@ def levelled_at_import(root: Path) -> bool:
         source = meta["neoedit_import"]["orientation"]["up_source"]
     except (OSError, ValueError, KeyError, TypeError):
         return False
-    return isinstance(source, str) and source != NOT_LEVELLED
+    # an import without a plane writes "mean camera up; <how the floor was placed>"
+    return isinstance(source, str) and source.split(";")[0].strip() != NOT_LEVELLED
 
 
 def look_centre(capture: Capture) -> np.ndarray:

@@ -74,7 +74,8 @@ def write_moved(
     """A copy of the dataset ``src`` with every camera moved by the similarity ``transform``
     (4x4) and depth rescaled with it. Its scene box becomes ``scene_aabb`` (the old one is
     dropped: it would no longer be axis-aligned); instance labels and ``objects.json`` are
-    left out (their boxes are in the old frame). ``record`` is stored as
+    left out (their boxes are in the old frame), and so is how an import oriented the old
+    frame (``neoedit_import.orientation``). ``record`` is stored as
     ``neoedit_registration``."""
     src_tf = _transforms_path(src)
     meta = json.loads(src_tf.read_text())
@@ -85,6 +86,8 @@ def write_moved(
         frame["transform_matrix"] = np.round(c2w, 9).tolist()
         frame.pop("instance_path", None)
     meta.pop("scene_aabb", None)
+    if isinstance(meta.get("neoedit_import"), dict):
+        meta["neoedit_import"].pop("orientation", None)
     if scene_aabb is not None:
         meta["scene_aabb"] = scene_aabb
     if any(str(f.get("depth_file_path", "")).endswith(".png") for f in meta["frames"]):

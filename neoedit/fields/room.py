@@ -49,9 +49,10 @@ class RoomConfig:
     it, on a forward-facing capture (spinnerf_1) the room painted the object just behind the
     box and the box stayed transparent over it."""
     joint_distortion: float = 0.0
-    """Weight, relative to the box's own, of the distortion loss's terms between the box's
-    samples of a ray and the room's (mip-NeRF 360 weighs the whole ray; 0: the box and the
-    room are compacted separately). Measured on spinnerf_1 (5 min, alone), the box field's
+    """Factor on the distortion loss weight for the loss's terms between the box's samples
+    of a ray and the room's, at their positions on the warped distance (0 to 1 over the
+    whole ray; mip-NeRF 360 weighs the whole ray; 0: the box and the room are compacted
+    separately). Measured on spinnerf_1 (5 min, alone), the box field's
     opacity over the object's masks: 0.60 with 0, 0.64 with 1, 0.54 with 10 (the object
     pushed into the room behind the box); PSNR unchanged (19.2 dB unedited, 20.9 removed).
     Off by default: it does not keep a forward-facing capture's object in the box."""

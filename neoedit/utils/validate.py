@@ -40,6 +40,7 @@ BOUNDS: dict[str, tuple[float | None, float | None]] = {
     "dino_dim": (0, 1 << 14),
     "start_radius": (1.0, None),  # the room's sphere must hold the box
     "far_factor": (1.0, None),
+    "joint_distortion": (0.0, None),
     "warmup": (0.0, 0.9),  # the room must train for a while before renders use it
 }
 _DEVICE_RE = re.compile(r"^(auto|cpu|mps|cuda(:\d+)?)$")
