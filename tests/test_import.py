@@ -634,10 +634,10 @@ def test_a_moved_copy_forgets_how_its_old_frame_was_levelled(sim_root: Path, tmp
         "orientation": {"up_source": "support plane of the sparse points"},
     }
     (src / "transforms.json").write_text(json.dumps(meta))
-    assert levelled_at_import(src)
+    assert levelled_at_import(meta)
     tilt = np.eye(4)
     tilt[:3, :3] = [[1.0, 0.0, 0.0], [0.0, 0.8, -0.6], [0.0, 0.6, 0.8]]
     write_moved(src, tilt, tmp_path / "moved")
     moved = json.loads((tmp_path / "moved" / "transforms.json").read_text())
     assert moved["neoedit_import"] == {"photos": 13}
-    assert not levelled_at_import(tmp_path / "moved")
+    assert not levelled_at_import(moved)

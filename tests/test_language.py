@@ -348,8 +348,6 @@ def test_data_levelled_at_import_falls_back_to_its_own_up(sim_root: Path, tmp_pa
     """No plane in the language's points and cameras looking 46 deg down: a dataset `neo
     import` levelled on a measured plane keeps its +z (its transforms.json says how it was
     levelled); any other falls back to the cameras' up, which check_up refuses."""
-    import json
-
     from neoedit.data.orient import levelled_at_import
     from neoedit.language.localize import check_up
 
@@ -369,13 +367,17 @@ def test_data_levelled_at_import_falls_back_to_its_own_up(sim_root: Path, tmp_pa
         ("mean camera up; floor at the lowest points", False),
         ("mean camera up; no points: origin at the look centre", False),
     ):
-        orientation = {"orientation": {"up_source": source}}
-        (tmp_path / "transforms.json").write_text(json.dumps({"neoedit_import": orientation}))
-        assert levelled_at_import(tmp_path) is levelled, source
-    (tmp_path / "transforms.json").write_text("{not json")
-    assert not levelled_at_import(tmp_path) and not levelled_at_import(
-        sim_root / "removal_1" / "pre"
+        meta = {"neoedit_import": {"orientation": {"up_source": source}}}
+        assert levelled_at_import(meta) is levelled, source
+    assert (
+        not levelled_at_import([]) and not load_scene_data(sim_root / "removal_1" / "pre").levelled
     )
+    # the loader reads it from the dataset file it loads
+    shutil.copytree(sim_root / "removal_1" / "pre", tmp_path / "pre")
+    tf = json.loads((tmp_path / "pre" / "transforms.json").read_text())
+    tf["neoedit_import"] = {"orientation": {"up_source": "support plane of the sparse points"}}
+    (tmp_path / "pre" / "transforms.json").write_text(json.dumps(tf))
+    assert load_scene_data(tmp_path / "pre").levelled
 
 
 def test_a_tilted_scene_is_refused_with_the_way_to_level_it():

@@ -43,6 +43,7 @@ import numpy as np
 from neoedit.cameras import Cameras
 from neoedit.cameras.cameras import validate_pose
 from neoedit.data.images import image_size, read_frame
+from neoedit.data.orient import levelled_at_import
 from neoedit.data.scene_data import SceneData
 from neoedit.data.undistort import (
     DISTORTION_KEYS,
@@ -397,6 +398,7 @@ def load_nerfstudio(
         objects=objects,
         background_rgb=bg,
         scene_aabb_m=aabb,
+        levelled=levelled_at_import(meta),
     )
 
 

@@ -17,9 +17,8 @@ turns the model into a z-up metric frame:
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
-from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -88,15 +87,13 @@ NOT_LEVELLED = "mean camera up"
 """The ``up_source`` of an import that found nothing better than the cameras' mean up."""
 
 
-def levelled_at_import(root: Path) -> bool:
-    """Whether the dataset in folder ``root`` was levelled by ``neo import`` / ``neo
-    process`` on something measured (a support plane, a marker plane, the ring of camera
-    centres): its transforms.json says so, and then its +z is that up. False for any other
-    dataset, or one that cannot be read."""
+def levelled_at_import(meta: Any) -> bool:
+    """Whether a dataset file's contents ``meta`` (a parsed transforms.json) say that ``neo
+    import`` / ``neo process`` levelled it on something measured (a support plane, a marker
+    plane, the ring of camera centres): then its +z is that up. False for anything else."""
     try:
-        meta = json.loads((Path(root) / "transforms.json").read_text())
         source = meta["neoedit_import"]["orientation"]["up_source"]
-    except (OSError, ValueError, KeyError, TypeError):
+    except (KeyError, TypeError):
         return False
     # an import without a plane writes "mean camera up; <how the floor was placed>"
     return isinstance(source, str) and source.split(";")[0].strip() != NOT_LEVELLED

@@ -33,6 +33,7 @@ class SceneData:
     objects: list[dict[str, Any]] = field(default_factory=list)  # objects.json entries
     background_rgb: tuple[float, float, float] | None = None  # in [0, 1]
     scene_aabb_m: np.ndarray | None = None  # (2, 3) min / max corner of the scene
+    levelled: bool = False  # +z is a measured up: `neo import` levelled it (data.orient)
 
     def __len__(self) -> int:
         return len(self.file_paths)

@@ -20,7 +20,6 @@ from rich.markup import escape
 
 from neoedit.cameras.rays import CameraTensors
 from neoedit.data import SceneData
-from neoedit.data.orient import levelled_at_import
 from neoedit.errors import NeoError
 from neoedit.fields.language import LanguageField, LanguageFieldConfig
 from neoedit.language.geometric import GeometricConfig, GeometricTeacher, NoSupportPlane
@@ -233,9 +232,7 @@ def train_language(scene: Scene, data: SceneData, cfg: LanguageTrainConfig) -> S
         loss=round(float(loss_ema or 0.0), 5),
         up=[
             round(float(c), 5)
-            for c in estimate_up(
-                data.cameras, points.numpy(), levelled=levelled_at_import(data.root)
-            )
+            for c in estimate_up(data.cameras, points.numpy(), levelled=data.levelled)
         ],
         cloud_rays_per_pixel=float(f"{rays_per_pixel:.6g}"),
     )
