@@ -278,6 +278,8 @@ def _scene_groups(scene: Scene) -> dict[str, dict[str, torch.Tensor]]:
 def read_scene_meta(path: Path) -> SceneMeta:
     """The validated metadata (scene.json) of a scene folder or store version."""
     meta_path = path / "scene.json"
+    if path.is_file():
+        raise NeoError(f"{path} is a file: give a scene folder (neo train --out writes one)")
     if not path.is_dir():
         raise NeoError(f"scene not found: {path}")
     if not meta_path.is_file():

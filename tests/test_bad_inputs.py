@@ -312,6 +312,25 @@ CASES = [
     C("move-one-object-twice", "move {scene} --box mugs.json --translate 0.01 0 0 --out v", 2, "start from the same region", write("mugs.json", [BOX_MUG, BOX_MUG])),
     C("move-short-translate", "move {scene} --box mug.json --translate 1 2 --out v", 2, "argument count 3 of `FLOAT FLOAT FLOAT`", MUG),
     C("render-view-beyond-memory", "render {scene} --cameras cams.json --out r", 2, "GiB of memory", cameras(w=32768, h=32768, cx=16384.0, cy=16384.0)),
+    # 18. the third probe of issue 42: one range per option whatever the value, the conflict
+    # named as the user meets it, the thing at a path named for what it is
+    C("threads-beyond-machine", "info {data} --threads 100000", 2, "give at most"),
+    C("grasp-top-zero", "grasp {scene} mug --top 0", 2, "--top must be >= 1, got 0"),
+    C("grasp-top-negative", "grasp {scene} mug --top -1", 2, "--top must be >= 1, got -1"),
+    C("grasp-contacts-zero", "grasp {scene} mug --grasp.contacts 0", 2, "--grasp.contacts must be >= 1"),
+    C("render-zero-frames", "render {scene} --n-frames 0 --out r", 2, "--n-frames must be >= 1, got 0"),
+    C("diff-zero-views", "diff {scene} a b --views 0", 2, "--views must be >= 1, got 0"),
+    C("query-huge-image-scale", "query {scene} mug --image-scale 1000", 2, "--image-scale must be in (0, 4], got 1000"),
+    C("train-room-on-rgba", "train {data} --out s --field.room True " + TRAIN, 2, "transparent backgrounds"),
+    C("train-room-closed-bottom", "train {data} --out s --field.room True --field.closed-bottom " + TRAIN, 2, "rules out --field.closed-bottom"),
+    C("train-no-overwrite-option", "train {data} --out s --overwrite " + TRAIN, 2, "neo train has no --overwrite"),
+    C("train-out-store", "train {data} --out st " + TRAIN, 2, "is a scene store", write("st/store.json", {"format": "neoedit.store/1", "current": None})),
+    C("log-file", "log notes.txt", 2, "notes.txt is a file", FILE),
+    C("log-store-without-current", "log st", 0, "names 'step_9' as current, which is not a version", write("st/store.json", {"format": "neoedit.store/1", "current": "step_9"})),
+    C("global-camera-model", "info {data}", 2, "transforms.json: camera_model 'FISHEYE_ODD'", set_frame(None, camera_model="FISHEYE_ODD")),
+    C("plan-yaml-syntax", "plan {scene} p.yaml --out st", 2, "not valid YAML: line 3, column 4: expected <block end>", write("p.yaml", "steps:\n  - type: remove\n   box: [1,2\n")),
+    C("flag-given-a-value", "train {data} --out s --field.closed-bottom True " + TRAIN, 2, "takes no True/False after it"),
+    C("verbose-and-quiet", "info {data} --verbose --quiet", 2, "opposite logs"),
 ]
 # fmt: on
 

@@ -91,6 +91,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``neo``; returns the exit status (0 ok, 2 bad input, 130 interrupted)."""
     args, threads = pop_threads(list(sys.argv[1:] if argv is None else argv))
     quiet = "--quiet" in args  # results and errors only: no progress bars
+    if quiet and "--verbose" in args:
+        Console(stderr=True).print(
+            "[bold red]error:[/] --quiet and --verbose ask for opposite logs: give one of them",
+            highlight=False,
+        )
+        return 2
     args = [a for a in args if a != "--quiet"]
     if "--verbose" in args:
         args = [a for a in args if a != "--verbose"]

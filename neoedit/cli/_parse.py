@@ -18,6 +18,8 @@ _OWNER = re.compile(r"^in (neo\b[\w .-]*?) --help$")
 _NOISE = re.compile(r" \(applied to [^)]*\)|Arguments are applied to the directly preceding.*$")
 _MARKUP = re.compile(r"\[/?(?:bold|dim|italic|underline|red|green|yellow|cyan|magenta|blue)\]")
 """Style tags tyro leaves in some messages' text (``[bold]FLOAT FLOAT FLOAT[/bold]``)."""
+_BOOL_WORD = re.compile(r"^Unrecognized.*options: (True|False)( (True|False))*$")
+"""A value after an on/off flag (``--field.closed-bottom True``) that tyro does not take."""
 GROUPS = ("sim", "import")
 """Verbs with verbs of their own (neo sim scene, neo import colmap)."""
 
@@ -93,12 +95,39 @@ def condense(text: str, verb: str = "neo") -> str:
         found = _HELP.search(joined)
         if found and "helptext" in joined:
             help_hint = found.group(1)
-    if suggestions:
+    missing = _absent(sections[0], suggestions, verb)
+    if not suggestions and _BOOL_WORD.search(" ".join(sections[0])):
+        lines.append(
+            "  an on/off option takes no True/False after it: write --NAME to turn it on, "
+            "--no-NAME to turn it off"
+        )
+    elif missing:
+        lines.append(f"  {verb} has no {missing}" + INSTEAD.get((verb, missing), ""))
+    elif suggestions:
         lines.append("  did you mean: " + ", ".join(suggestions[:MAX_SUGGESTIONS]))
     if help_hint in (None, "neo --help"):
         help_hint = f"{verb} --help"
     lines.append(f"  every option: {help_hint}")
     return "\n".join(lines)
+
+
+INSTEAD = {
+    ("neo train", "--overwrite"): (
+        ": it never replaces a trained scene; give a new --out, or --resume to train it on"
+    ),
+}
+"""What to do instead of an option a verb does not have (keyed by verb and option)."""
+
+
+def _absent(first: list[str], suggestions: list[str], verb: str) -> str | None:
+    """The option the user typed when the only match tyro found is that same option of
+    another verb (``neo train --overwrite``: 'did you mean --overwrite' would send the user
+    round in a circle); None otherwise."""
+    typed = {w for w in " ".join(first).split() if w.startswith("--")}
+    exact = [s.split()[0] for s in suggestions if s.split()[0] in typed and "an option of" in s]
+    if verb == "neo" or not exact or any("an option of" not in s for s in suggestions):
+        return None
+    return exact[0]
 
 
 def _suggested(rows: list[str], verb: str) -> list[str]:
@@ -107,7 +136,7 @@ def _suggested(rows: list[str], verb: str) -> list[str]:
     it ('--scenes (an option of neo bench)'), the options of ``verb`` come first."""
     options: list[tuple[str, str | None]] = []
     for row in rows:
-        word = row.split()[0]
+        word = row.split()[0].rstrip(",")
         if word.startswith("-"):
             options.append((word, None))
         owner = _OWNER.match(row)

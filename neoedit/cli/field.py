@@ -20,6 +20,7 @@ from neoedit.language.training import LanguageTrainConfig
 from neoedit.rendering.occupancy import OccupancyGridConfig
 from neoedit.rendering.renderer import RenderConfig
 from neoedit.training.trainer import TrainConfig
+from neoedit.utils.options import at_least_one
 
 console = Console()
 
@@ -120,7 +121,7 @@ class RenderCommand:
     """Which cameras: the training data's train or held-out split, or a spiral around the scene."""
     cameras: Path | None = None
     """Render exactly the frames of this transforms.json, each under its own file_path (overrides --views)."""
-    n_frames: int = 60
+    n_frames: int = at_least_one(60)
     """Frames of the spiral."""
     video: bool = False
     """Also write video.gif (and video.mp4 if imageio-ffmpeg is installed)."""

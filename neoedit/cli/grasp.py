@@ -15,6 +15,7 @@ from rich.markup import escape
 from neoedit.errors import NeoError
 from neoedit.grasp import GraspConfig
 from neoedit.language.localize import QueryConfig
+from neoedit.utils.options import at_least_one
 
 console = Console()
 
@@ -32,7 +33,7 @@ class GraspCommand:
     """What to grasp, e.g. "red mug"; or use --box."""
     box: Path | None = None
     """JSON box file instead of a prompt."""
-    top: int = 5
+    top: int = at_least_one(5)
     """How many grasps to keep."""
     json: Path | None = None
     """Also write the grasps (a list, best first) to this file."""
@@ -55,12 +56,8 @@ class GraspCommand:
 
         if (self.prompt is None) == (self.box is None):
             raise NeoError('give either a prompt ("red mug") or --box BOX.json, not both')
-        if self.top < 1:
-            raise NeoError("--top must be >= 1")
         if not (0 < self.grasp.friction < 10):
             raise NeoError("--grasp.friction must be in (0, 10)")
-        if self.grasp.approaches < 1 or self.grasp.contacts < 1:
-            raise NeoError("--grasp.approaches and --grasp.contacts must be >= 1")
         if not (0.0005 <= self.grasp.surface.voxel_m <= 0.02):
             raise NeoError("--grasp.surface.voxel-m must be in [0.0005, 0.02] m")
         if not (0.0 < self.grasp.surface.opacity < 1.0):

@@ -15,6 +15,7 @@ from rich.table import Table
 
 from neoedit.errors import NeoError
 from neoedit.records import own_edit
+from neoedit.utils.options import at_least_one
 
 console = Console()
 
@@ -76,6 +77,8 @@ class LogCommand:
                 table.add_row(*_row(mark, info.meta, parent, info.manifest.get("bytes")))
             console.print(table)
             console.print(f"{len(store.names())} versions, {total / 1e6:.1f} MB in all")
+            if current not in store.names():
+                _warn_no_current(self.scene, current)
             return
         from neoedit.scene import read_scene_meta
 
@@ -85,6 +88,20 @@ class LogCommand:
             table.add_row(*_row("", fake, rec.parent or "-", None))
         table.add_row(*_row(str(self.scene), meta.to_dict(), meta.parent or "-", None))
         console.print(table)
+
+
+def _warn_no_current(store: Path, current: str | None) -> None:
+    """A store whose store.json names no version that exists: commands that read its current
+    version will refuse it, so the log says so and how to mend it."""
+    what = (
+        "names no current version"
+        if current is None
+        else f"names {current!r} as current, which is not a version of the store"
+    )
+    Console(stderr=True).print(
+        f"warning: {escape(str(store))}/store.json {escape(what)}; make one current "
+        f"with: neo restore {escape(str(store))} VERSION"
+    )
 
 
 @dataclass
@@ -122,7 +139,7 @@ class DiffCommand:
     """Second version."""
     out: Path | None = None
     """Output folder (default: outputs/diff/<store>_<a>_<b>)."""
-    views: int = 3
+    views: int = at_least_one(3)
     """Held-out scan views to render (training views when the scan has none)."""
     overwrite: bool = False
     """Replace OUT if it holds an earlier diff."""
@@ -143,8 +160,6 @@ class DiffCommand:
 
         if not is_store(self.scene):
             raise NeoError(f"{self.scene} is not a scene store (neo plan --out makes one)")
-        if self.views < 1:
-            raise NeoError("--views must be >= 1")
         store = SceneStore(self.scene)
         a, b = store.find(self.a), store.find(self.b)
         out = self.out or Path("outputs/diff") / f"{Path(self.scene).name}_{a}_{b}"

@@ -56,8 +56,8 @@ class QueryCommand:
         prompts = split_prompts(self.prompt)
         if not prompts:
             raise NeoError('empty prompt: say which object to find, e.g. "red mug"')
-        if self.views < 0 or not 0 < self.image_scale <= 4:
-            raise NeoError("--views must be >= 0 and --image-scale in (0, 4]")
+        if not 0 < self.image_scale <= 4:
+            raise NeoError(f"--image-scale must be in (0, 4], got {self.image_scale}")
         self._check_outputs()
         scene = load_scene(self.scene, resolve_device(self.device))
         if scene.meta.language is None:

@@ -18,6 +18,7 @@ from neoedit.cli.edit import check_json_output, check_move_method, edit_result, 
 from neoedit.edit.plan import PlanConfig
 from neoedit.errors import NeoError
 from neoedit.language.localize import QueryConfig
+from neoedit.utils.options import at_least_one
 
 console = Console()
 
@@ -46,7 +47,7 @@ class PlanCommand:
     """NEO's move and removal settings (--edit.move.distill.render-steps, --edit.remove.margin-m
     ...); with --method seal3d the move steps take --seal3d.* instead."""
     query: QueryConfig = dataclasses.field(default_factory=QueryConfig)
-    views: int = 3
+    views: int = at_least_one(3)
     """Held-out views in plan.png."""
     json: Path | None = None
     """Also write the result here as JSON: every step's version folder, id, boxes, seconds
@@ -68,8 +69,6 @@ class PlanCommand:
         from neoedit.utils.io import atomic_write_json, check_writable_output
         from neoedit.viz.versions import pick_views, render_versions
 
-        if self.views < 1:
-            raise NeoError("--views must be >= 1")
         actions = load_plan(self.plan)  # every step checked before any work
         for a in actions:
             plan_boxes(a)

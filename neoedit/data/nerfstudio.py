@@ -239,10 +239,11 @@ def _parse_frames(
     for i, frame in frames:
         where = f"{tf_path} frame {i}"
         model = "PINHOLE"
+        model_where = where if "camera_model" in frame else str(tf_path)  # a global key
         if with_images:
-            model = camera_model(meta, frame, where)
+            model = camera_model(meta, frame, model_where)
         else:
-            check_camera_model(meta, frame, where)
+            check_camera_model(meta, frame, model_where)
         poses.append(validate_pose(frame["transform_matrix"], where))
         check_rotation(poses[-1], where)
         size = partial(image_size, tf_path.parent / frame["file_path"]) if with_images else None

@@ -32,6 +32,7 @@ from neoedit.geometry import OrientedBox
 from neoedit.grasp.gripper import GripperConfig, box_lattice, gripper_boxes, opening
 from neoedit.grasp.surface import DensityFn, Surface, SurfaceConfig, Volume, object_surface
 from neoedit.scene import Scene
+from neoedit.utils.options import at_least_one
 
 
 @dataclass
@@ -40,9 +41,9 @@ class GraspConfig:
     surface: SurfaceConfig = field(default_factory=SurfaceConfig)
     friction: float = 0.5
     """Friction coefficient mu: contact normals may deviate atan(mu) from the closing axis."""
-    contacts: int = 600
+    contacts: int = at_least_one(600)
     """First contacts sampled on the surface."""
-    approaches: int = 8
+    approaches: int = at_least_one(8)
     """Approach directions tried per antipodal pair (around the closing axis)."""
     min_width_m: float = 0.006
     """Thinner pairs are skipped (noise in a wall)."""

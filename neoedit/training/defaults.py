@@ -29,18 +29,34 @@ def field_config(
     around the scene ``box`` (2,3) when most cameras look at it from outside."""
     cfg = cfg or RadianceFieldConfig()
     photos = data.alpha is None or bool((data.alpha == 255).all())
+    chosen_background = cfg.learned_background
     if cfg.learned_background is None:
         cfg = dataclasses.replace(cfg, learned_background=photos)
     if cfg.room is None:
         room = photos and bool(cfg.learned_background) and not cfg.closed_bottom
         cfg = dataclasses.replace(cfg, room=room and cameras_outside(data, box) > 0.5)
-    elif cfg.room and (cfg.closed_bottom or cfg.learned_background is False):
-        raise NeoError(
-            "--field.room True models what lies beyond the box: it cannot be combined with "
-            "--field.closed-bottom True or --field.learned-background False (they set what "
-            "rays leaving the box see); drop one of them"
-        )
+    elif cfg.room:
+        _check_room(cfg, chosen_background)
     return cfg
+
+
+def _check_room(cfg: RadianceFieldConfig, chosen_background: bool | None) -> None:
+    """Refuse a room the other options rule out, naming the one that does."""
+    if cfg.closed_bottom:
+        conflict = "--field.closed-bottom (the box's floor stops every ray)"  # a flag
+    elif cfg.learned_background is False and chosen_background is None:
+        conflict = (
+            "this dataset's transparent backgrounds (RGBA images: nothing lies beyond the "
+            "box, so --field.learned-background defaults to False)"
+        )
+    elif cfg.learned_background is False:
+        conflict = "--field.learned-background False"
+    else:
+        return
+    raise NeoError(
+        f"--field.room True models what lies beyond the box, which rules out {conflict}; "
+        "drop --field.room True"
+    )
 
 
 def cameras_outside(data: SceneData, box: np.ndarray) -> float:

@@ -238,11 +238,14 @@ def mark_output(folder: Path, kind: str) -> None:
 
 
 def output_kind(path: Path) -> str | None:
-    """'scene' (neoedit scene), 'sim' (simulated scans), the kind in a :data:`MARKER`, or None
-    when ``path`` is not a neoedit output folder."""
+    """'scene' (neoedit scene), 'store' (a scene store: ``neo plan --out``), 'sim' (simulated
+    scans), the kind in a :data:`MARKER`, or None when ``path`` is not a neoedit output folder."""
     path = Path(path)
     if not path.is_dir():
         return None
+    store = _read_json_quiet(path / "store.json") if (path / "store.json").is_file() else None
+    if isinstance(store, dict) and str(store.get("format", "")).startswith("neoedit.store/"):
+        return "store"
     meta = _read_json_quiet(path / "scene.json") if (path / "scene.json").is_file() else None
     if isinstance(meta, dict):
         if meta.get("format") == "neoedit.scene/1":
@@ -294,6 +297,8 @@ def refuse_foreign(path: Path, kind: str | None) -> None:
         if path.is_file()
         else "not a neoedit output"
         if found is None
+        else "a scene store"
+        if found == "store"
         else f"a neoedit {found}"
     )
     raise NeoError(

@@ -95,11 +95,20 @@ def _number(value: Any) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
-def _check_number(name: str, value: Any, default: Any, where: str) -> None:
+def at_least_one(default: int) -> Any:
+    """A count option that means nothing below 1 (``views: int = at_least_one(3)``): the
+    one range check refuses 0 and negatives with one message."""
+    return dataclasses.field(default=default, metadata={"min": 1})
+
+
+def _check_number(name: str, value: Any, f: dataclasses.Field, where: str) -> None:
+    default = _default(f)
     if not math.isfinite(value):
         raise NeoError(f"{where} must be a finite number, got {value}")
     if name in OWN_BOUNDS:
         return
+    if "min" in f.metadata and value < f.metadata["min"]:
+        raise NeoError(f"{where} must be >= {f.metadata['min']}, got {value}")
     check_bound(name, value, where)
     if name in POSITIVE and value <= 0:
         raise NeoError(f"{where} must be > 0, got {value}")
@@ -138,7 +147,7 @@ def check_options(cfg: Any, path: tuple[str, ...] = (), omit: bool = False) -> N
             below = omit or _omits_prefix(hints.get(f.name))
             check_options(value, path if below else here, below)
         elif _number(value):
-            _check_number(f.name, value, _default(f), flag(here))
+            _check_number(f.name, value, f, flag(here))
         elif isinstance(value, (tuple, list)):
             for item in value:
                 if _number(item) and not math.isfinite(item):

@@ -61,7 +61,22 @@ def _positive(text: str, source: str) -> int:
         n = 0
     if n < 1:
         raise NeoError(f"{source} must be a positive integer, got {text!r}")
+    limit = max_threads()
+    if n > limit:
+        raise NeoError(
+            f"{source} {n} is more than {OVERSUBSCRIPTION}x this machine's "
+            f"{os.cpu_count() or 1} cores; give at most {limit}"
+        )
     return n
+
+
+OVERSUBSCRIPTION = 4
+"""Most threads per core a user may ask for: more only slows the work down, and torch's
+thread pool crashes the process (signal 11) at ~10^5 threads."""
+
+
+def max_threads() -> int:
+    return OVERSUBSCRIPTION * (os.cpu_count() or 1)
 
 
 _BUDGET: list[int] = []
@@ -76,10 +91,13 @@ def configure_threads(requested: int | None = None) -> int:
     import torch
 
     n = resolve_threads(requested)
-    torch.set_num_threads(n)
     _BUDGET[:] = [n]
     _CHOSEN[:] = [] if requested is None else [n]
+    # numba first: starting its OpenMP threads sets the thread count of a libgomp that
+    # torch may share (it does once another library loaded the system libgomp first), so
+    # torch's count set before it would be reset to every core
     apply_thread_budget()
+    torch.set_num_threads(n)
     return n
 
 

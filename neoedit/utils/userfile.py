@@ -58,5 +58,15 @@ def read_data_file(path: Path, what: str, yaml_ok: bool = False) -> Any:
         return yaml.safe_load(text) if as_yaml else json.loads(text)
     except (ValueError, yaml.YAMLError, RecursionError) as e:
         raise NeoError(
-            f"{path}: the {what} is not valid {'YAML' if as_yaml else 'JSON'}: {e}"
+            f"{path}: the {what} is not valid {'YAML' if as_yaml else 'JSON'}: {_one_line(e)}"
         ) from None
+
+
+def _one_line(error: BaseException) -> str:
+    """A parser's complaint in one line: YAML's multi-line report (context, caret drawings)
+    becomes its problem and where it is ('line 3, column 4: expected <block end>, ...')."""
+    mark = getattr(error, "problem_mark", None)
+    problem = getattr(error, "problem", None)
+    if mark is not None and problem:
+        return f"line {mark.line + 1}, column {mark.column + 1}: {problem}"
+    return " ".join(str(error).split())
