@@ -16,7 +16,14 @@ from neoedit.data.nerfstudio import load_cameras
 from neoedit.data.validate import check_file_path
 from neoedit.errors import NeoError
 from neoedit.scene import Scene, load_scene
-from neoedit.utils.io import atomic_directory, atomic_write_json, check_writable_output, write_png
+from neoedit.utils.io import (
+    IMAGE_SUFFIXES,
+    atomic_directory,
+    atomic_write_json,
+    check_writable_output,
+    write_image,
+    write_png,
+)
 from neoedit.utils.progress import track
 from neoedit.utils.validate import check_memory
 
@@ -64,7 +71,7 @@ def render_to_dataset(
         rgb = (r["rgb"].clamp(0, 1).cpu().numpy() * 255).round().astype(np.uint8)
         depth = np.where(r["accumulation"].cpu().numpy() > 0.5, r["depth_z"].cpu().numpy(), 0.0)
         stem = Path(names[i]).with_suffix("")
-        write_png(out / names[i], rgb)
+        write_image(out / names[i], rgb)
         write_png(
             out / "depth" / f"{stem}.png",
             np.round(depth / DEPTH_UNIT_M).clip(0, 65535).astype(np.uint16),
@@ -180,6 +187,20 @@ def _check_names(names: list[str], where: object) -> None:
                 f"{where}: file_path {name!r} would overwrite the render's own "
                 f"{'/'.join(parts[:1])}; the RGB frames go under another name (e.g. images/...)"
             )
+    for name in names:
+        if Path(name).suffix.lower() not in IMAGE_SUFFIXES:
+            raise NeoError(
+                f"{where}: file_path {name!r} is no image name: renders are written as "
+                f"{' or '.join(IMAGE_SUFFIXES)}"
+            )
     seen = {Path(n).with_suffix("").as_posix().removeprefix("./") for n in names}
     if len(seen) != len(names):
         raise NeoError(f"{where}: two frames share a file_path; each view needs its own name")
+    plain = [Path(n).as_posix().removeprefix("./") for n in names]
+    folders = {p.as_posix() for n in plain for p in Path(n).parents}
+    for name in plain:
+        if name in folders:
+            raise NeoError(
+                f"{where}: file_path {name!r} is also the folder of another frame's file_path; "
+                "each view needs a name of its own"
+            )

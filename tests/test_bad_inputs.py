@@ -331,6 +331,26 @@ CASES = [
     C("plan-yaml-syntax", "plan {scene} p.yaml --out st", 2, "not valid YAML: line 3, column 4: expected <block end>", write("p.yaml", "steps:\n  - type: remove\n   box: [1,2\n")),
     C("flag-given-a-value", "train {data} --out s --field.closed-bottom True " + TRAIN, 2, "takes no True/False after it"),
     C("verbose-and-quiet", "info {data} --verbose --quiet", 2, "opposite logs"),
+    # 19. the fourth probe of issue 42: numbers beyond any sane size, a training that cannot
+    # fit or diverges, a resume that would drop options, a value swallowed as the prompt
+    C("train-huge-seed", "train {data} --out s --seed 99999999999999999999 " + TRAIN, 2, "--seed must be at most 2147483647"),
+    C("train-huge-density-bias", "train {data} --out s --field.density-bias 1e300 " + TRAIN, 2, "--field.density-bias must be at most 1e+12"),
+    C("train-rays-beyond-memory", "train {data} --out s --rays-per-batch 100000000 --max-steps 1", 2, "GiB of memory"),
+    C("train-diverges", "train {data} --out s --lr 1e9 " + TRAIN, 2, "training diverged "),
+    C("train-resume-other-model", "train {data} --out r --resume --max-steps 3 --skip-language --field.hidden-dim 16", 2, "--field.hidden-dim 16 differs from its saved 8", neo_first("train {data} --out r " + TRAIN)),
+    C("grasp-up-zero", "grasp {scene} --box mug.json --grasp.up 0 0 0", 2, "give a non-zero vector", MUG),
+    C("grasp-negative-path", "grasp {scene} --box mug.json --grasp.approach-path-m -1", 2, "--grasp.approach-path-m must be >= 0", MUG),
+    C("remove-flag-given-true", "remove {scene} --box mug.json --out v --no-inpaint true", 2, "--no-inpaint takes no value", MUG),
+    C("remove-flag-equals-false", "remove {scene} --box mug.json --out v --inpaint=False", 2, "write --no-inpaint", MUG),
+    C("move-own-option-suggested", "move {scene} --box mug.json --translate 0.01 0 0 --out v --no-inpaint", 2, "did you mean: --edit.remove.no-inpaint", MUG),
+    C("plan-empty-box-list", "plan {scene} p.yaml --out st", 2, "box is an empty list", write("p.yaml", "- {type: remove, box: []}\n")),
+    C("eval-empty-box-list", "eval {scene} --data {data} --out-box be.json", 2, "be.json holds an empty list", write("be.json", [])),
+    C("render-cameras-no-image-name", "render {scene} --cameras cams.json --out r", 2, "is no image name", cameras_frame(file_path="images")),
+    C("info-frames-twice", "info {data}", 2, "name the same image", lambda ws: ws.write_transforms({**ws.transforms(), "frames": ws.transforms()["frames"] * 2})),
+    C("info-max-width-zero", "info {data} --max-width 0", 2, "--max-width must be >= 8, got 0"),
+    C("view-port-zero", "view {scene} --port 0", 2, "--port = 0 is out of range [1, 65535]"),
+    C("sim-scene-off-table", "sim scene spec.yaml --out s", 2, "fell off the table", write("spec.yaml", "name: s\nobjects:\n  - {name: mug, urdf: 'pybullet_data:objects/mug.urdf', position_m: [100, 0, 0.01]}\n")),
+    C("sim-scene-nan-position", "sim scene spec.yaml --out s", 2, "'objects[0].position_m': must be finite", write("spec.yaml", "name: s\nobjects:\n  - {name: mug, urdf: 'pybullet_data:objects/mug.urdf', position_m: [.nan, 0, 0.01]}\n")),
 ]
 # fmt: on
 
@@ -395,3 +415,38 @@ def test_every_default_option_passes_the_range_rules() -> None:
                 check_options(value, (f.name,))
                 checked += 1
     assert checked >= 15
+
+
+def test_log_of_an_edited_folder_lists_its_lineage_once(golden, tmp_path: Path, capsys) -> None:
+    """``neo log`` on an edited scene folder: the trained scan first, then each edit once,
+    the folder's own edit named by the folder (the fourth probe saw it twice, the scan
+    never)."""
+    from neoedit.cli import main
+
+    ws = make_workspace(tmp_path / "ws", *golden)
+    ws.write("mug.json", BOX_MUG)
+    scan_id = ws.scene_json()["version_id"]
+    out = ws.path("v1")
+    assert (
+        main(
+            [
+                "remove",
+                str(ws.scene),
+                "--box",
+                str(ws.path("mug.json")),
+                "--out",
+                str(out),
+                "--no-inpaint",
+            ]
+        )
+        == 0
+    )
+    edit_id = ws.path("v1/scene.json")
+    capsys.readouterr()
+    assert main(["log", str(out)]) == 0
+    text = capsys.readouterr().out
+    own = __import__("json").loads(edit_id.read_text())["version_id"]
+    rows = [line for line in text.splitlines() if line.startswith("│")]
+    assert sum(own[:8] in r for r in rows) == 1 and any(
+        scan_id[:8] in r and "train" in r for r in rows
+    )

@@ -311,3 +311,18 @@ def test_kept_versions_are_the_evaluated_scenes(small_run, tmp_path: Path):
         folder.result("removal_1", "no-such-method")
     report = (tmp_path / "run" / "REPORT.md").read_text()
     assert "query IoU after" in report and "Every edited version is kept" in report
+
+
+def test_the_methods_help_names_every_method():
+    """``neo bench --help`` lists every method the command accepts (the help is a docstring,
+    the accepted names a table: a method added to one must reach the other)."""
+    import inspect
+    import re
+
+    from neoedit.bench.methods import ALL_METHODS
+    from neoedit.cli import bench
+
+    source = inspect.getsource(bench.BenchCommand)
+    doc = source.split("methods: tuple[str, ...] = ()", 1)[1].split('"""')[1]
+    named = set(re.findall(r"[a-z0-9][a-z0-9-]+", doc))
+    assert set(ALL_METHODS) <= named, set(ALL_METHODS) - named

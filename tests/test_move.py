@@ -29,8 +29,9 @@ from neoedit.edit.language_update import (
     pushed_out_of_footprint,
     update_language,
 )
+from neoedit.edit.pipeline import sketch
 from neoedit.edit.refine import RefineConfig
-from neoedit.edit.relocate import Motion, MoveConfig, move
+from neoedit.edit.relocate import Motion, Move, MoveConfig, move
 from neoedit.edit.views import VirtualViewConfig
 from neoedit.errors import NeoError
 from neoedit.fields.composed import ComposedField, TransformedField, moved_field
@@ -191,6 +192,13 @@ def test_move_end_to_end(move_scene: Path, sim_root: Path, tmp_path: Path):
     # there, and the rest of the scene renders as before
     motion = Motion(OrientedBox.from_dict(moved.meta.edits[-1].details["boxes"][0]), transform)
     preview = move(parent, [motion], MoveConfig(preview=True))
+    # the viewer's instant sketch of that preview: the same render, no new version (the
+    # parent's field shared, its metadata untouched); an edit that trains is never sketched
+    sketched = sketch(parent, Move([motion], MoveConfig(preview=True)))
+    assert sketched.field is parent.field and not parent.meta.moves
+    assert sketched.meta.edits == parent.meta.edits and len(sketched.meta.moves) == 1
+    with pytest.raises(NeoError, match="trains nothing"):
+        sketch(parent, Move([motion], MoveConfig()))
     data = load_scene_data(sim_root / "pick_place_1" / "pre")
     cams = CameraTensors(data.cameras)
     for view in (0, len(data) // 2):
@@ -198,6 +206,8 @@ def test_move_end_to_end(move_scene: Path, sim_root: Path, tmp_path: Path):
             s.render_image(cams, view, data.height, data.width)["rgb"]
             for s in (parent, moved, preview)
         )
+        rs = sketched.render_image(cams, view, data.height, data.width)["rgb"]
+        assert torch.allclose(rs, rp, atol=1e-5)
         moved_box = OrientedBox.from_dict(moved.meta.edits[-1].details["target_boxes"][0])
         into = torch.as_tensor(project_box_mask(data.cameras, view, moved_box))
         if into.sum() > 20:

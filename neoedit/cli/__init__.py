@@ -10,6 +10,7 @@ from collections.abc import Iterator, Sequence
 from typing import Any, Protocol
 
 from rich.console import Console
+from rich.markup import escape
 
 from neoedit.cli._parse import parse
 from neoedit.errors import NeoError
@@ -107,8 +108,44 @@ def main(argv: Sequence[str] | None = None) -> int:
         from neoedit.cli._commands import Commands
 
         command = parse(Commands, args, THREADS_HELP)
+    misread = misread_prompt(args, command)
+    if misread is not None:
+        Console(stderr=True).print(f"[bold red]error:[/] {escape(misread)}", highlight=False)
+        return 2
     with _env(QUIET_ENV, "1" if quiet else os.environ.get(QUIET_ENV)):
         return _run(command, threads)
+
+
+BOOL_WORDS = frozenset({"true", "false", "yes", "no", "on", "off", "0", "1"})
+
+
+def misread_prompt(args: list[str], command: Any) -> str | None:
+    """What went wrong when a command's prompt is really a mistyped option: an
+    ``--inpaint=False`` no verb knows, or the 'true' after an on/off flag (``--no-inpaint
+    true``), which the prompt argument swallowed (the command would look for an object
+    named 'true'); None for a real prompt."""
+    prompt = getattr(command, "prompt", None)
+    if not isinstance(prompt, str):
+        return None
+    if prompt.startswith("--"):
+        return (
+            f"{prompt} is not an option of this command (it was read as the prompt); on/off "
+            "options take no value: write --NAME or --no-NAME"
+        )
+    if prompt.lower() not in BOOL_WORDS:
+        return None
+    for i, arg in enumerate(args):
+        name, _, value = arg.partition("=")
+        if arg == prompt and i > 0 and args[i - 1].startswith("--"):
+            name = args[i - 1]
+        elif not (arg.startswith("--") and value == prompt):
+            continue
+        off = prompt.lower() in ("false", "no", "off", "0")
+        negated = name.startswith("--no-")
+        plain = name.removeprefix("--").removeprefix("no-")
+        meant = f"--no-{plain}" if off != negated else f"--{plain}"
+        return f"{name} takes no value ('{prompt}' was read as the prompt): write {meant}"
+    return None
 
 
 def _parse_one_verb(args: list[str]) -> Any:

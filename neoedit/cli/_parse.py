@@ -5,14 +5,17 @@ similar option of every verb: thousands of characters for one typo)."""
 from __future__ import annotations
 
 import contextlib
+import difflib
 import io
 import re
 import sys
+from collections.abc import Sequence
 from typing import Any, get_args
 
 import tyro
 
 MAX_SUGGESTIONS = 5
+_OPTION = re.compile(r"(?<![\w-])--[a-z0-9][a-z0-9.-]*[a-z0-9]")
 _HELP = re.compile(r"(neo\b[\w .-]*?--help)")
 _OWNER = re.compile(r"^in (neo\b[\w .-]*?) --help$")
 _NOISE = re.compile(r" \(applied to [^)]*\)|Arguments are applied to the directly preceding.*$")
@@ -79,9 +82,11 @@ def _sections(rows: list[str]) -> list[list[str]]:
     return [s for s in sections if s]
 
 
-def condense(text: str, verb: str = "neo") -> str:
+def condense(text: str, verb: str = "neo", options: Sequence[str] = ()) -> str:
     """tyro's error box -> 'error: ...' plus a suggestion line and a help line (the text
-    as it is when it is not a box)."""
+    as it is when it is not a box). ``options``: every option of ``verb`` (when known), so
+    that its own option of the same name comes first and suggestions of no verb are
+    dropped."""
     sections = _sections(_rows(text))
     if not sections:
         return text.strip()
@@ -95,6 +100,8 @@ def condense(text: str, verb: str = "neo") -> str:
         found = _HELP.search(joined)
         if found and "helptext" in joined:
             help_hint = found.group(1)
+    if options:
+        suggestions = _ranked(sections[0], suggestions, options)
     missing = _absent(sections[0], suggestions, verb)
     if not suggestions and _BOOL_WORD.search(" ".join(sections[0])):
         lines.append(
@@ -109,6 +116,40 @@ def condense(text: str, verb: str = "neo") -> str:
         help_hint = f"{verb} --help"
     lines.append(f"  every option: {help_hint}")
     return "\n".join(lines)
+
+
+def _ranked(first: list[str], suggestions: list[str], options: Sequence[str]) -> list[str]:
+    """The verb's own options named like a typed one (``--no-inpaint`` ->
+    ``--edit.remove.no-inpaint``) first, then tyro's suggestions that are the verb's or
+    named with their verb; tyro's others (options of no verb of this spelling) dropped."""
+    typed = [w.rstrip(",") for w in " ".join(first).split() if w.startswith("--")]
+    tails = {w.removeprefix("--").split("=")[0] for w in typed}
+    same = [o for o in options if any(o == f"--{t}" or o.endswith(f".{t}") for t in tails)]
+    last = {o: o.removeprefix("--").rsplit(".", 1)[-1] for o in options}
+    close = {m for t in tails for m in difflib.get_close_matches(t, set(last.values()), 3, 0.8)}
+    same += [o for o in options if last[o] in close and o not in same]
+    known = set(options)
+    kept = [s for s in suggestions if s.split()[0] in known or "an option of" in s]
+    return list(dict.fromkeys([*same, *kept]))
+
+
+def verb_options(commands: Any, verb: str) -> list[str]:
+    """Every option spelling of ``verb`` ('neo move'), read from its help (an error path
+    only: rendering the help costs a few tenths of a second); [] for group verbs."""
+    name = verb.removeprefix("neo").strip()
+    for option in get_args(commands):
+        markers = [getattr(m, "name", None) for m in getattr(option, "__metadata__", ())]
+        inner = get_args(option)
+        if name not in markers or not inner or get_args(inner[0]):
+            continue
+        shown = io.StringIO()
+        with contextlib.redirect_stdout(shown), contextlib.redirect_stderr(io.StringIO()):
+            try:
+                tyro.cli(inner[0], prog=verb, args=["--help"])
+            except SystemExit:
+                pass
+        return list(dict.fromkeys(_OPTION.findall(shown.getvalue())))
+    return []
 
 
 INSTEAD = {
@@ -156,7 +197,9 @@ def parse(commands: Any, args: list[str], description: str) -> Any:
             return tyro.cli(commands, prog="neo", args=args, description=description)
     except SystemExit as e:
         if e.code not in (0, None) and captured.getvalue():
-            print(condense(captured.getvalue(), verb_of(args, verbs(commands))), file=sys.stderr)
+            verb = verb_of(args, verbs(commands))
+            text = condense(captured.getvalue(), verb, verb_options(commands, verb))
+            print(text, file=sys.stderr)
             captured = io.StringIO()  # said, condensed
         raise
     finally:

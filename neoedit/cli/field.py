@@ -197,3 +197,10 @@ class EvalCommand:
         if self.json:
             atomic_write_json(self.json, result)
         console.print_json(json.dumps(result))
+        for region, option in (("out", "--out-box"), ("in", "--in-box")):
+            if region in result and result[region]["psnr"] is None:
+                Console(stderr=True).print(
+                    f"warning: {option} covers no pixel of the {result['n_views']} views: its "
+                    "metrics are null (is the box inside the scene, in front of the cameras?)",
+                    markup=False,
+                )

@@ -19,6 +19,7 @@ import numpy as np
 from neoedit.cameras import Cameras
 from neoedit.data.scene_data import SceneData
 from neoedit.errors import DataError
+from neoedit.utils.options import at_least
 
 
 @dataclass
@@ -27,7 +28,7 @@ class DataConfig:
 
     downscale: int = 1
     """Shrink the images by this integer factor (nerfstudio: --downscale-factor)."""
-    max_width: int | None = None
+    max_width: int | None = at_least(8)
     """Or shrink by the smallest integer factor that makes the images at most this wide."""
     skip_missing: bool = False
     """Drop the frames whose image file is missing (with a warning) instead of refusing the

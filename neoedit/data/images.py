@@ -97,7 +97,8 @@ def read_depth_m(path: Path, unit_scale_m: float) -> np.ndarray:
         try:
             raw = np.load(path, allow_pickle=False)
         except (OSError, ValueError, EOFError) as e:  # pickled objects, truncated files
-            raise DataError(f"cannot read depth {path}: {e}") from None
+            why = "it holds Python objects, which are never loaded" if "pickle" in str(e) else e
+            raise DataError(f"cannot read depth {path}: {why}") from None
         if not isinstance(raw, np.ndarray) or raw.dtype.kind not in "biuf":
             raise DataError(f"depth {path}: expected a numeric array of metres, got {raw.dtype}")
         depth = raw.astype(np.float32)

@@ -18,6 +18,7 @@ from neoedit.data.pieces import PairCheck, PieceCheckConfig, find_pieces
 from neoedit.data.sparse_depth import SparseDepthWriter
 from neoedit.errors import DataError
 from neoedit.utils.io import atomic_directory, atomic_write_json
+from neoedit.utils.options import at_least
 from neoedit.utils.progress import track
 
 PIECE_CHOICES = ("check", "largest", "all")
@@ -25,7 +26,7 @@ PIECE_CHOICES = ("check", "largest", "all")
 
 @dataclass
 class ImportConfig:
-    max_width: int | None = None
+    max_width: int | None = at_least(16)
     """Downscale the photos to at most this width in pixels (aspect kept); None keeps them."""
     piece: str = "check"
     """'check': stop with an explanation when the model is broken into pieces; 'largest':

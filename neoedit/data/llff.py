@@ -45,7 +45,8 @@ def read_llff(src: Path, images: Path | None = None) -> Capture:
     try:
         table = np.load(path, allow_pickle=False)
     except (OSError, ValueError) as e:
-        raise DataError(f"{path}: not a readable .npy array: {e}") from None
+        why = "it holds Python objects, which are never loaded" if "pickle" in str(e) else e
+        raise DataError(f"{path}: not a readable .npy array of numbers ({why})") from None
     if table.ndim != 2 or table.shape[1] != 17 or len(table) < 2:
         raise DataError(f"{path}: expected an (N, 17) array with N >= 2, got {table.shape}")
     if not np.all(np.isfinite(table)):

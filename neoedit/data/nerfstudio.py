@@ -192,6 +192,15 @@ def _frames(tf_path: Path, meta: dict[str, Any]) -> Frames:
         for key in ("file_path", "depth_file_path", "mask_path", "instance_path"):
             if key in frame and (not isinstance(frame[key], str) or not frame[key].strip()):
                 raise DataError(f"{where}: '{key}' must be a non-empty path, got {frame[key]!r}")
+    first: dict[str, int] = {}
+    for i, frame in enumerate(meta["frames"]):
+        key = str(Path(frame["file_path"]))
+        if key in first:
+            raise DataError(
+                f"{tf_path}: frames {first[key]} and {i} name the same image "
+                f"({_short(frame['file_path'])}); list each photo once"
+            )
+        first[key] = i
     return list(enumerate(meta["frames"]))
 
 

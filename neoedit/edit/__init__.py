@@ -1,10 +1,11 @@
 """Editing a trained scene (paper Sec. III): every edit is a typed object run by the one
 pipeline, :func:`apply_edit` (:mod:`neoedit.edit.pipeline`)::
 
-    from neoedit.edit import Move, Motion, Remove, apply_edit
+    from neoedit.edit import Move, MoveConfig, Motion, Remove, apply_edit, sketch
 
     no_mug = apply_edit(scene, Remove([mug_box]))
     moved = apply_edit(scene, Move([Motion(mug_box, transform)]))
+    at_once = sketch(scene, Move([Motion(mug_box, transform)], MoveConfig(preview=True)))
 
 The edits: :class:`Remove` (NEO's removal and inpainting, or the instant preview) and
 :class:`Move` (NEO's distillation, or the preview); the baselines are edits of their own
@@ -21,6 +22,7 @@ _EXPORTS = {
     "apply_edit": "neoedit.edit.pipeline",
     "Edit": "neoedit.edit.pipeline",
     "Prepared": "neoedit.edit.pipeline",
+    "sketch": "neoedit.edit.pipeline",
     "Remove": "neoedit.edit.remove",
     "RemoveConfig": "neoedit.edit.remove",
     "Move": "neoedit.edit.relocate",

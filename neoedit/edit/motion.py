@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal, get_args
 
 import numpy as np
 
@@ -21,7 +21,8 @@ from neoedit.geometry.box import box_iou_3d
 from neoedit.records import EditRecord
 from neoedit.scene import Scene
 
-STUDENTS = ("patch", "field")
+Student = Literal["patch", "field"]
+STUDENTS: tuple[str, ...] = get_args(Student)
 MAX_TILT_DEG = 5.0
 """Largest tilt a motion may have (a placement that settled slightly askew, as NEO-Sim's
 realised transforms do); the field turns the object exactly, its boxes keep only the yaw."""
@@ -73,7 +74,7 @@ class MoveConfig:
     target: a shade, a ratio map on the target's support (neoedit/fields/shade.py),
     translated with the object. NEO's carried object only (``carry``, the patch student, not
     ``preview``): a distilled target learns from a teacher without it."""
-    student: str = "patch"
+    student: Student = "patch"
     """'patch': the student is a new patch of the field, initialised from the current
     weights, owning the source boxes with the support under them (its MLPs learn at
     ``distill.mlp_lr_factor``, 0 by default: the hole needs only table rows;
@@ -154,7 +155,7 @@ def check_motions(scene: Scene, motions: list[Motion]) -> None:
                     f"motions {i + 1} and {j + 1} start from the same region (box IoU "
                     f"{box_iou_3d(a.box, motions[j].box):.2f}): an object moves once per edit"
                 )
-    aabb = scene.field.aabb.cpu().numpy()
+    aabb = scene.field.aabb.cpu().numpy().astype(np.float64)  # printed: no float32 noise
     for m in motions:
         if not is_rigid(m.transform):
             raise NeoError(

@@ -11,6 +11,10 @@ An edit is a typed object (:class:`~neoedit.edit.remove.Remove`,
     update_language(parent, child, ...)    # the query cloud follows the edit
     record timings and seconds             # into the child's last history entry
 
+An edit whose method trains nothing (a removal cut at render time, a preview move) can also
+be *sketched*: :func:`sketch` runs it on a light copy of the parent (field shared) with no
+history entry and no language update, at once — what the viewer draws while the user drags.
+
 A new method is a new class with a ``prepare`` method; nothing here changes. Work is timed
 with :meth:`Timings.stage`, so every edit's record holds the same kind of entries
 (``<stage>_s`` seconds, ``loss_<name>`` values).
@@ -18,6 +22,7 @@ with :meth:`Timings.stage`, so every edit's record holds the same kind of entrie
 
 from __future__ import annotations
 
+import copy
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -25,11 +30,12 @@ from typing import Protocol
 
 from neoedit.edit.history import new_version
 from neoedit.edit.language_update import LanguageEdit, LanguageUpdateConfig, update_language
+from neoedit.errors import NeoError
 from neoedit.records import EditRecord
 from neoedit.scene import Scene
 from neoedit.utils.timings import Timings
 
-__all__ = ["Edit", "Prepared", "Timings", "apply_edit"]
+__all__ = ["Edit", "Prepared", "Timings", "apply_edit", "sketch"]
 
 
 @dataclass
@@ -43,6 +49,9 @@ class Prepared:
     language: LanguageEdit
     """Where the query cloud loses points and where it gains them."""
     language_cfg: LanguageUpdateConfig | None = None
+    instant: bool = False
+    """The run trains nothing (it only records render-time edits and refreshes the grid):
+    :func:`sketch` may run it on a light copy."""
 
 
 class Edit(Protocol):
@@ -65,3 +74,22 @@ def apply_edit(parent: Scene, edit: Edit) -> Scene:
     record.timings = dict(timings)
     record.seconds = round(time.perf_counter() - t0, 2)
     return child
+
+
+def sketch(parent: Scene, edit: Edit) -> Scene:
+    """``edit`` as it will render, at once, for an edit that trains nothing (a removal cut
+    at render time, a preview move): run on a light copy of ``parent`` that shares its field
+    and language field (metadata and occupancy grid copied), with no history entry and no
+    language update. ``parent`` is left unchanged; an edit that trains is refused."""
+    prepared = edit.prepare(parent)
+    if not prepared.instant:
+        raise NeoError("only an edit that trains nothing can be sketched (a cut or a preview)")
+    light = Scene(
+        parent.field,
+        copy.deepcopy(parent.grid),
+        copy.deepcopy(parent.meta),
+        parent.language,
+        parent.surface_points_m,
+    )
+    prepared.run(light, Timings())
+    return light

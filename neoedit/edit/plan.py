@@ -89,6 +89,8 @@ class Action(BaseModel):
     def _consistent(self) -> Action:
         if (self.prompt is None) == (self.box is None):
             raise ValueError("give either prompt or box")
+        if isinstance(self.box, list) and not self.box:
+            raise ValueError("box is an empty list: give a box, or a list of boxes")
         if self.prompt is not None and not split_prompts(self.prompt):
             raise ValueError("the prompt is empty")
         inline = self.translate_m is not None or self.yaw_deg != 0.0 or self.transform is not None

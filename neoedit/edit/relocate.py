@@ -79,7 +79,7 @@ class Move:
                 shades,
             )  # fmt: skip
 
-        return Prepared(record, run, move.language(), cfg.language)
+        return Prepared(record, run, move.language(), cfg.language, instant=cfg.preview)
 
 
 def _shades(

@@ -148,7 +148,8 @@ class Remove:
                 region = [edit_region(b, cfg.refine.below_m) for b in work]
                 refresh_grid(child.grid, child.field.density, cells_in_boxes(child.grid, region))
 
-        return Prepared(record, run, LanguageEdit(source=work, targets=[]), self.language)
+        language = LanguageEdit(source=work, targets=[])
+        return Prepared(record, run, language, self.language, instant=not cfg.inpaint)
 
 
 def remove(

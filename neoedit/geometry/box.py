@@ -37,7 +37,10 @@ class OrientedBox:
         if len(self.center_m) != 3 or len(self.size_m) != 3:
             raise NeoError("box center and size need 3 values each")
         if not all(np.isfinite(v) for v in (*self.center_m, *self.size_m, self.yaw_deg)):
-            raise NeoError(f"box has non-finite values: {self}")
+            raise NeoError(
+                f"box has non-finite values: center {list(self.center_m)}, size "
+                f"{list(self.size_m)}, yaw {self.yaw_deg} deg"
+            )
         if min(self.size_m) <= 0:
             raise NeoError(f"box size must be positive, got {self.size_m}")
 
@@ -228,6 +231,8 @@ def load_boxes(path: Path) -> list[OrientedBox]:
     """Read one box or a list of boxes from a JSON file (also accepts ``{"box": {...}}``)."""
     data = read_data_file(Path(path), "box file")
     items = data if isinstance(data, list) else [data]
+    if not items:
+        raise NeoError(f"{path} holds an empty list: give a box, or a list of boxes")
     return [OrientedBox.from_dict(d.get("box", d) if isinstance(d, dict) else {}) for d in items]
 
 

@@ -10,6 +10,7 @@ import math
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from pydantic import TypeAdapter, ValidationError
 
 from neoedit.errors import NeoError, SpecError
@@ -54,6 +55,10 @@ def _check_semantics(spec: SceneSpec, source: str) -> None:
         if names.index(name) != i:
             raise SpecError(f"{source}: field 'objects[{i}].name': duplicate name {name!r}")
     for i, o in enumerate(spec.objects):
+        for key in ("position_m", "yaw_deg", "rpy_deg", "scale"):
+            values = np.atleast_1d(np.asarray(getattr(o, key), dtype=np.float64))
+            if not np.isfinite(values).all():
+                raise SpecError(f"{source}: field 'objects[{i}].{key}': must be finite numbers")
         if o.scale <= 0:
             raise SpecError(f"{source}: field 'objects[{i}].scale': must be > 0")
     present = set(names)

@@ -146,6 +146,18 @@ class SimWorld:
             pb.stepSimulation(physicsClientId=self.client)
             if i > PHYSICS_HZ // 4 and i % 24 == 0 and self._at_rest():
                 break
+        self._check_on_table()
+
+    def _check_on_table(self, below_m: float = 0.05) -> None:
+        """Every object rests on the table: one placed beyond its edge falls out of every
+        view, and a scan of it would edit nothing anyone can see."""
+        for name, body in self.bodies.items():
+            low = float(self.object_vertices_world_for(body)[:, 2].min())
+            if low < -below_m:
+                raise SpecError(
+                    f"object {name!r} fell off the table (it came to rest {-low:.2f} m below "
+                    "the table top): place it on the table (its position_m x, y)"
+                )
 
     def _at_rest(self, tol: float = 1e-3) -> bool:
         for body in self.bodies.values():

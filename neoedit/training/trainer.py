@@ -15,7 +15,7 @@ import torch
 from neoedit.cameras.rays import CameraTensors, RayBundle
 from neoedit.data import SceneData, load_scene_data
 from neoedit.data.downscale import DataConfig
-from neoedit.data.scan import scan_from_record, scan_record
+from neoedit.data.scan import scan_record
 from neoedit.data.sparse_depth import is_sparse, sparse_pixels
 from neoedit.errors import NeoError
 from neoedit.fields.patched import PatchedField
@@ -28,6 +28,13 @@ from neoedit.rendering.volume import distortion_loss, light_missing, opacity_pen
 from neoedit.scene import Scene, SceneMeta, load_scene, save_scene
 from neoedit.storage import find_store, is_store
 from neoedit.training.appearance import PhotoAppearance
+from neoedit.training.checks import (
+    check_finite_weights,
+    check_resume_options,
+    check_same_scan,
+    check_step_memory,
+    fingerprint,
+)
 from neoedit.training.defaults import (
     AUTO_SPARSITY,
     _grown,
@@ -36,6 +43,7 @@ from neoedit.training.defaults import (
     scene_box_and_source,
 )
 from neoedit.utils.device import resolve_device
+from neoedit.utils.fit import check_finite_loss
 from neoedit.utils.optim import field_param_groups, load_optimizer_state, make_adam
 from neoedit.utils.progress import make_progress
 
@@ -99,33 +107,6 @@ class TrainConfig:
     checkpoint_every: int = 1000
     """Steps between checkpoints (0 = only at the end)."""
     seed: int = 0
-
-
-def _fingerprint(data: SceneData, frames: int = 8) -> dict[str, list[list[float]]]:
-    """Mean colour (0-255) of the first frames: tells two scans with the same cameras apart
-    (NEO-Sim's scenes share their camera paths)."""
-    means = data.images[:frames].reshape(min(frames, len(data.images)), -1, 3).mean(1)
-    return {"image_means": np.round(means, 2).tolist()}
-
-
-def _check_same_scan(scene: Scene, data: SceneData) -> None:
-    """--resume continues a training on the data it started with (the same frames and
-    cameras; the folder may have moved): anything else would mix two scenes silently."""
-    if not scene.meta.scan:
-        return
-    cameras, paths, _ = scan_from_record(scene.meta.scan)
-    means = scene.meta.scan.get("image_means")  # scenes trained before it: cameras only
-    same = (
-        paths == list(data.file_paths)
-        and len(cameras) == len(data.cameras)
-        and np.allclose(cameras.camera_to_world, data.cameras.camera_to_world, atol=1e-5)
-        and (means is None or np.allclose(means, _fingerprint(data)["image_means"], atol=1.0))
-    )
-    if not same:
-        raise NeoError(
-            f"--resume: {data.root} is not the dataset this scene was trained on "
-            f"({scene.meta.data_path}); train a new scene with another --out"
-        )
 
 
 def psnr(mse: float) -> float:
@@ -285,6 +266,7 @@ class Trainer:
         if self.appearance is not None:
             loss = loss + self.appearance.penalty()
             self.appearance.zero_grad()
+        check_finite_loss(float(loss.detach()), step, "training", "--lr or the loss weights")
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         self.optimizer.step()
@@ -378,6 +360,9 @@ class Trainer:
                 last = step + 1 == cfg.max_steps or (
                     cfg.max_minutes is not None and t_train >= 60 * cfg.max_minutes
                 )
+                checkpoint = cfg.checkpoint_every and (step + 1) % cfg.checkpoint_every == 0
+                if last or checkpoint:
+                    check_finite_weights(self.scene.field, step + 1)
                 if last:
                     self.finish_grid()
                 if (cfg.eval_every and (step + 1) % cfg.eval_every == 0) or last:
@@ -397,7 +382,6 @@ class Trainer:
                     status=f"PSNR {psnr(ema):5.2f} dB | {rays_per_s / 1e3:5.1f}k rays/s"
                     + (f" | eval {meta.history[-1]['eval_psnr']} dB" if meta.history else ""),
                 )
-                checkpoint = cfg.checkpoint_every and (step + 1) % cfg.checkpoint_every == 0
                 if self.out is not None and (last or checkpoint):
                     save_scene(self.out, self.scene, self.optimizer)
                 if last:
@@ -428,6 +412,9 @@ def train(
             f"{out} is (in) a scene store: training writes a plain scene folder; train there "
             "and start a store from it with neo plan"
         )
+    check_step_memory(
+        cfg.rays_per_batch, field_cfg or RadianceFieldConfig(), render_cfg or RenderConfig()
+    )
     torch.manual_seed(cfg.seed)
     data = load_scene_data(data_path, data_cfg)
     box, box_source = scene_box_and_source(data)
@@ -435,10 +422,12 @@ def train(
         cfg = dataclasses.replace(cfg, sparsity_loss_weight=AUTO_SPARSITY[box_source])
     if cfg.depth_loss_weight < 0:
         cfg = dataclasses.replace(cfg, depth_loss_weight=0.1 if data.depth_m is not None else 0.0)
+    given_field = field_cfg
     field_cfg = field_config(field_cfg, data, box)
     if resume:
         scene = load_scene(out, dev)
-        _check_same_scan(scene, data)
+        check_same_scan(scene, data)
+        check_resume_options(scene, given_field, render_cfg, grid_cfg)
         scene.meta.train = dataclasses.asdict(cfg)
     else:
         if (Path(out) / "scene.json").exists():
@@ -456,7 +445,7 @@ def train(
             grid=grid_cfg or OccupancyGridConfig(),
             render=render_cfg,
             train=dataclasses.asdict(cfg),
-            scan={**scan_record(data.cameras, data.file_paths, data.split), **_fingerprint(data)},
+            scan={**scan_record(data.cameras, data.file_paths, data.split), **fingerprint(data)},
         )
         scene = Scene.create(meta, dev, seed=cfg.seed)
     if resume and scene.meta.edits and language is not None:

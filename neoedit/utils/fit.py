@@ -7,15 +7,24 @@ optimisation — the removal patch, distillation, the language field — runs th
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 import torch
 from rich.progress import Progress, TaskID
 
+from neoedit.errors import NeoError
 from neoedit.utils.progress import make_progress
 
 LossFn = Callable[[int], torch.Tensor]
 """step -> scalar loss (with a graph to the parameters being fitted)."""
+
+
+def check_finite_loss(value: float, step: int, what: str, knob: str) -> None:
+    """Stop an optimisation whose loss stopped being a number: one more step would write
+    NaN into every weight it touches (and the save would refuse the broken field)."""
+    if not math.isfinite(value):
+        raise NeoError(f"{what} diverged at step {step} (the loss is {value}); lower {knob}")
 
 
 def fit(
@@ -43,10 +52,11 @@ def fit(
                 for g, lr in zip(optimizer.param_groups, base_lr, strict=True):
                     g["lr"] = lr * scale
             loss = loss_fn(step)
+            value = float(loss.detach())
+            check_finite_loss(value, step, label, "its learning rate")
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             optimizer.step()
-            value = float(loss.detach())
             ema = value if ema is None else 0.9 * ema + 0.1 * value
             text = status(step, ema) if status is not None else f"loss {ema:.4f}"
             progress.update(task, advance=1, status=text)

@@ -126,6 +126,24 @@ def atomic_write_json(path: Path, obj: Any) -> None:
     atomic_write_bytes(Path(path), (json.dumps(obj, indent=2) + "\n").encode())
 
 
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+"""Formats :func:`write_image` writes (by the file name's suffix)."""
+
+
+def write_image(path: Path, image: np.ndarray) -> None:
+    """Write a uint8 image in the format its name says (PNG, or JPEG at quality 95),
+    atomically (parent folders are created)."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in IMAGE_SUFFIXES:
+        raise NeoError(f"{path}: cannot write a {suffix or 'suffix-less'} image (use .png or .jpg)")
+    if suffix == ".png":
+        write_png(path, image)
+        return
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(path, iio.imwrite("<bytes>", image, extension=".jpg", quality=95))
+
+
 def write_png(path: Path, image: np.ndarray) -> None:
     """Write a uint8 or uint16 image as PNG, atomically (parent folders are created)."""
     path = Path(path)

@@ -24,6 +24,7 @@ SIGNED = frozenset(
     {
         "yaw",
         "yaw_deg",
+        "up",  # a direction: any sign
         "azimuth_offset_deg",
         "elevation_min_deg",
         "elevation_max_deg",
@@ -35,6 +36,9 @@ SIGNED = frozenset(
     }
 )
 """Numeric options that may be negative although their default is not."""
+
+DIRECTIONS = frozenset({"up"})
+"""Vector options that name a direction (never the zero vector)."""
 
 POSITIVE = frozenset(
     {
@@ -59,6 +63,10 @@ POSITIVE = frozenset(
         "workers",
         "downscale",
         "holdout_every",
+        "max_minutes",
+        "lr_final_factor",
+        "sparsity_points",
+        "friction",
     }
 )
 """Options for which zero means nothing (a rate, a size, a count of work)."""
@@ -66,6 +74,13 @@ POSITIVE = frozenset(
 OWN_BOUNDS = frozenset({"max_steps"})
 """Options whose bounds depend on others, checked by their command alone (``--max-steps``:
 at least 1, or 0 with ``--resume``), so that -1 and 0 get the same message."""
+
+MAX_INT = 2**31 - 1
+"""Largest whole-number option (steps, counts, seeds): beyond it torch and numpy overflow."""
+MAX_FLOAT = 1e12
+"""Largest size of a real-valued option: far beyond any metre, weight or rate that means
+something, well inside float32 (the field's tensors), where 1e300 overflowed. (A yaw has
+its own range, in degrees, checked by its command with a message that says so.)"""
 
 _UNIT = re.compile(r"(fraction|quantile|share|decay|opacity|focus|similarity)$")
 
@@ -95,6 +110,12 @@ def _number(value: Any) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
+def at_least(minimum: int, default: Any = None) -> Any:
+    """An option that means nothing below ``minimum`` (``max_width: int | None =
+    at_least(8)``): the one range check refuses smaller values with one message."""
+    return dataclasses.field(default=default, metadata={"min": minimum})
+
+
 def at_least_one(default: int) -> Any:
     """A count option that means nothing below 1 (``views: int = at_least_one(3)``): the
     one range check refuses 0 and negatives with one message."""
@@ -105,6 +126,10 @@ def _check_number(name: str, value: Any, f: dataclasses.Field, where: str) -> No
     default = _default(f)
     if not math.isfinite(value):
         raise NeoError(f"{where} must be a finite number, got {value}")
+    if isinstance(value, int) and abs(value) > MAX_INT:
+        raise NeoError(f"{where} must be at most {MAX_INT} in size, got {value}")
+    if isinstance(value, float) and abs(value) > MAX_FLOAT and name not in ("yaw", "yaw_deg"):
+        raise NeoError(f"{where} must be at most {MAX_FLOAT:g} in size, got {value:g}")
     if name in OWN_BOUNDS:
         return
     if "min" in f.metadata and value < f.metadata["min"]:
@@ -149,6 +174,17 @@ def check_options(cfg: Any, path: tuple[str, ...] = (), omit: bool = False) -> N
         elif _number(value):
             _check_number(f.name, value, f, flag(here))
         elif isinstance(value, (tuple, list)):
-            for item in value:
-                if _number(item) and not math.isfinite(item):
-                    raise NeoError(f"{flag(here)} must be finite numbers, got {item}")
+            _check_numbers(f.name, [v for v in value if _number(v)], _default(f), flag(here))
+
+
+def _check_numbers(name: str, values: list[Any], default: Any, where: str) -> None:
+    """A tuple option (a size, a path of distances, a direction): finite, of a sane size,
+    never negative where no default entry is, and a direction not the zero vector."""
+    for item in values:
+        if not math.isfinite(item) or abs(item) > MAX_FLOAT:
+            raise NeoError(f"{where} must be finite numbers of at most {MAX_FLOAT:g}, got {item}")
+    defaults = [d for d in default if _number(d)] if isinstance(default, (tuple, list)) else []
+    if defaults and name not in SIGNED and min(defaults) >= 0 and values and min(values) < 0:
+        raise NeoError(f"{where} must be >= 0, got {min(values)}")
+    if name in DIRECTIONS and not any(values):
+        raise NeoError(f"{where} is a direction: give a non-zero vector, e.g. 0 0 1")

@@ -42,6 +42,7 @@ BOUNDS: dict[str, tuple[float | None, float | None]] = {
     "far_factor": (1.0, None),
     "joint_distortion": (0.0, None),
     "warmup": (0.0, 0.9),  # the room must train for a while before renders use it
+    "port": (1, 65535),
 }
 _DEVICE_RE = re.compile(r"^(auto|cpu|mps|cuda(:\d+)?)$")
 
@@ -157,7 +158,7 @@ def check_config(cfg: Any, where: str) -> None:
             f"{where}.backend must be auto, numba or torch, got {shorten(cfg.backend)!r}"
         )
     if hasattr(cfg, "base_resolution") and cfg.max_resolution < cfg.base_resolution:
-        raise NeoError(f"{where}.max_resolution must be at least base_resolution")
+        raise NeoError(f"{where}.max-resolution must be at least {where}.base-resolution")
 
 
 def _require(ok: bool, message: str) -> None:

@@ -13,7 +13,6 @@ into a new folder beside it.
 
 from __future__ import annotations
 
-import copy
 import dataclasses
 import threading
 from collections import OrderedDict
@@ -25,14 +24,13 @@ from typing import Any, Literal
 import numpy as np
 import torch
 
-from neoedit.edit.checks import check_edit_boxes
-from neoedit.edit.relocate import Motion, MoveConfig, check_motions
-from neoedit.edit.remove import RemoveConfig, working_boxes
+from neoedit.edit.pipeline import sketch
+from neoedit.edit.relocate import Motion, Move, MoveConfig
+from neoedit.edit.remove import Remove, RemoveConfig
 from neoedit.errors import NeoError
 from neoedit.geometry import OrientedBox, motion_about
 from neoedit.language.localize import QueryConfig, QueryResult, query_scene
 from neoedit.language.relevancy import split_prompts
-from neoedit.rendering.occupancy import cells_in_boxes, refresh_grid
 from neoedit.scene import Scene, load_scene, read_scene_meta
 from neoedit.storage import SceneStore, find_store, is_store
 from neoedit.storage.store import MANIFEST
@@ -189,20 +187,17 @@ class ViewerState:
         return scene, result
 
     def preview_remove(self) -> PendingEdit:
-        """The removal of the found object, instantly: its working box cut out of the rays."""
+        """The removal of the found object, instantly: its working box cut out of the rays
+        (sketched: :func:`~neoedit.edit.pipeline.sketch`; a commit inpaints it)."""
         scene, result = self._found()
-        cfg = self.cfg.remove
-        check_edit_boxes(scene, [result.box])
-        work = working_boxes(scene, [result.box], cfg)
-        meta = copy.deepcopy(scene.meta)
-        key = "cut_boxes" if cfg.removal == "resample" else "suppress_boxes"
-        getattr(meta, key).extend(b.to_dict() for b in work)
-        preview = Scene(scene.field, scene.grid, meta, scene.language, scene.surface_points_m)
+        cfg = dataclasses.replace(self.cfg.remove, inpaint=False)
+        preview = sketch(scene, Remove([result.box], cfg, result.prompt))
         return self._set_pending(scene, PendingEdit("remove", result.box, result.prompt, preview))
 
     def preview_move(self, translate_m: np.ndarray, yaw_deg: float) -> PendingEdit | None:
         """The move of the found object by ``translate_m`` and ``yaw_deg`` (about the vertical
-        axis through its box), composed at render time; None (no preview) for no motion."""
+        axis through its box), composed at render time (``neo move --preview``, sketched);
+        None (no preview) for no motion."""
         scene, result = self._found()
         t = np.asarray(translate_m, dtype=np.float64).reshape(3)
         if not np.isfinite(t).all() or not np.isfinite(yaw_deg):
@@ -211,23 +206,11 @@ class ViewerState:
             self.discard_preview()
             return None
         transform = motion_about(np.asarray(result.box.center_m), t, float(yaw_deg))
-        cfg = self.cfg.move
-        check_motions(scene, [Motion(result.box, transform)])
-        sources = working_boxes(scene, [result.box], cfg.remove)
-        targets = [s.transformed(transform).lifted_bottom(cfg.target_floor_m) for s in sources]
-        meta = copy.deepcopy(scene.meta)
-        for s, g in zip(sources, targets, strict=True):
-            meta.moves.append(
-                {"source": s.to_dict(), "target": g.to_dict(), "transform": transform.tolist()}
-            )
-        preview = Scene(
-            scene.field, copy.deepcopy(scene.grid), meta, scene.language, scene.surface_points_m
-        )
-        field_, _ = preview.renderable()
+        cfg = dataclasses.replace(self.cfg.move, preview=True)
         with torch.no_grad():
-            cells = cells_in_boxes(preview.grid, [*sources, *targets])
-            refresh_grid(preview.grid, field_.density, cells)
-        edit = PendingEdit("move", result.box, result.prompt, preview, transform, targets[0])
+            preview = sketch(scene, Move([Motion(result.box, transform)], cfg, result.prompt))
+        target = OrientedBox.from_dict(preview.meta.moves[-1]["target"])
+        edit = PendingEdit("move", result.box, result.prompt, preview, transform, target)
         return self._set_pending(scene, edit)
 
     def _set_pending(self, scene: Scene, edit: PendingEdit) -> PendingEdit:
