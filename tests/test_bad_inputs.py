@@ -237,7 +237,8 @@ CASES = [
     C("render-zero-frames", "render {scene} --views spiral --n-frames 0 --out r", 2, "--n-frames"),
     C("render-cameras-escape", "render {scene} --cameras cams.json --out r", 2, "stay inside", cameras_frame(file_path="../../escaped.png")),
     C("render-cameras-absolute", "render {scene} --cameras cams.json --out r", 2, "stay inside", cameras_frame(file_path="/tmp/escaped.png")),
-    C("render-cameras-duplicate", "render {scene} --cameras cams.json --out r", 2, "share a file_path", lambda ws: cameras_frame(file_path=ws.transforms()["frames"][1]["file_path"])(ws)),
+    C("render-cameras-duplicate", "render {scene} --cameras cams.json --out r", 2, "name the same image", lambda ws: cameras_frame(file_path=ws.transforms()["frames"][1]["file_path"])(ws)),
+    C("render-cameras-same-stem", "render {scene} --cameras cams.json --out r", 2, "share a file_path", lambda ws: cameras_frame(file_path=ws.transforms()["frames"][1]["file_path"].replace(".png", ".jpg"))(ws)),
     C("render-cameras-missing", "render {scene} --cameras nope.json --out r", 2, "file not found"),
     # 10. removal boxes
     C("remove-box-far-away", "remove {scene} --box far.json --out v --no-inpaint", 2, "does not intersect the scene box", FAR),
