@@ -36,8 +36,8 @@ def split(scene_dir: Path, sim: Path) -> dict:
     data = load_scene_data(sim / "post")
     if data.instance_ids is None:
         raise SystemExit(f"{sim}/post has no instance labels")
-    names = [i["name"] for i in json.loads((sim / "post/objects.json").read_text())["instances"]]
-    obj_id = names.index(action["object"])
+    instances = json.loads((sim / "post/objects.json").read_text())["instances"]
+    obj_id = next(i["id"] for i in instances if i["name"] == action["object"])
     indices = [int(i) for i in data.indices("test")]
     renders = render_views(load_scene(scene_dir, "cpu"), data, indices)
     sums = {"in": [0.0, 0], "object": [0.0, 0], "rest": [0.0, 0]}

@@ -143,6 +143,7 @@ def render_command(
     if cameras_json is not None:  # checked before the scene loads
         cameras, names, _ = load_cameras(cameras_json)
         _check_names(names, cameras_json)
+        _check_image_names(names, cameras_json)
         _check_view_memory(cameras)
     scene = load_scene(scene_dir, resolve_device(device))
     if cameras_json is None:
@@ -155,7 +156,7 @@ def render_command(
             if len(idx) == 0:
                 raise NeoError(f"the scene's dataset has no '{views}' views")
             cameras = data_cams.subset(idx)
-            names = [data_names[i] for i in idx]
+            names = [_as_image_name(data_names[i]) for i in idx]
         _check_names(names, "the scene's dataset")
         _check_view_memory(cameras)
     with atomic_directory(out, overwrite, kind="render") as tmp:
@@ -173,6 +174,23 @@ def _check_view_memory(cameras: Cameras) -> None:
     )
 
 
+def _check_image_names(names: list[str], where: object) -> None:
+    """The names a user's cameras file gives its renders: image names we can write."""
+    for name in names:
+        if Path(name).suffix.lower() not in IMAGE_SUFFIXES:
+            raise NeoError(
+                f"{where}: file_path {name!r} is no image name: renders are written as "
+                f"{' or '.join(IMAGE_SUFFIXES)}"
+            )
+
+
+def _as_image_name(name: str) -> str:
+    """A dataset frame's name for its render: kept when it is a .png / .jpg, else .png (a
+    .tif or suffix-less photo is rendered as a PNG under its own stem)."""
+    path = Path(name)
+    return name if path.suffix.lower() in IMAGE_SUFFIXES else str(path.with_suffix(".png"))
+
+
 def _check_names(names: list[str], where: object) -> None:
     """Output file names: relative, inside OUT, one per view."""
     for name in names:
@@ -186,12 +204,6 @@ def _check_names(names: list[str], where: object) -> None:
             raise NeoError(
                 f"{where}: file_path {name!r} would overwrite the render's own "
                 f"{'/'.join(parts[:1])}; the RGB frames go under another name (e.g. images/...)"
-            )
-    for name in names:
-        if Path(name).suffix.lower() not in IMAGE_SUFFIXES:
-            raise NeoError(
-                f"{where}: file_path {name!r} is no image name: renders are written as "
-                f"{' or '.join(IMAGE_SUFFIXES)}"
             )
     seen = {Path(n).with_suffix("").as_posix().removeprefix("./") for n in names}
     if len(seen) != len(names):

@@ -319,7 +319,7 @@ CASES = [
     C("grasp-top-zero", "grasp {scene} mug --top 0", 2, "--top must be >= 1, got 0"),
     C("grasp-top-negative", "grasp {scene} mug --top -1", 2, "--top must be >= 1, got -1"),
     C("grasp-contacts-zero", "grasp {scene} mug --grasp.contacts 0", 2, "--grasp.contacts must be >= 1"),
-    C("render-zero-frames", "render {scene} --n-frames 0 --out r", 2, "--n-frames must be >= 1, got 0"),
+    C("render-zero-frames-one-rule", "render {scene} --n-frames 0 --out r", 2, "--n-frames must be >= 1, got 0"),
     C("diff-zero-views", "diff {scene} a b --views 0", 2, "--views must be >= 1, got 0"),
     C("query-huge-image-scale", "query {scene} mug --image-scale 1000", 2, "--image-scale must be in (0, 4], got 1000"),
     C("train-room-on-rgba", "train {data} --out s --field.room True " + TRAIN, 2, "transparent backgrounds"),

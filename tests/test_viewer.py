@@ -392,6 +392,30 @@ def test_viewer_on_a_plain_scene_folder_lists_one_version(move_scene: Path):
         state.commit()
 
 
+def test_previews_are_sketches_whatever_the_commit_options(move_scene: Path):
+    """The viewer's previews sketch the library's own edits: a move preview works with an
+    option that only a committed move reads (``reuse_removal_patch``), and the version shown
+    is never changed by a preview."""
+    import dataclasses
+
+    from neoedit.edit.motion import MoveConfig
+    from neoedit.viewer.state import ViewerConfig, ViewerState
+
+    from test_language import SPARSE  # the tiny scan's sparse cloud: looser clustering
+
+    move = dataclasses.replace(MoveConfig(), reuse_removal_patch=True)
+    cfg = ViewerConfig(query=SPARSE, move=move)
+    state = ViewerState(move_scene, "cpu", cfg)
+    state.query("red mug")
+    shown = state.scene
+    moves_before = list(shown.meta.moves)
+    pending = state.preview_move(np.array([0.05, 0.0, 0.0]), 20.0)
+    assert pending is not None and pending.kind == "move" and len(pending.scene.meta.moves) == 1
+    assert pending.scene.field is shown.field and shown.meta.moves == moves_before
+    removal = state.preview_remove()
+    assert removal.scene.meta.cut_boxes and not shown.meta.cut_boxes
+
+
 def test_view_command_without_viser_is_one_clear_error(monkeypatch, capsys, tmp_path: Path):
     import builtins
 

@@ -100,10 +100,10 @@ def run_unit(ctx: Context, unit: Unit, key: str) -> dict[str, Any]:
     found box moved by the action leaves the scene) is an outcome and is cached; any other
     error (a missing package or weights, a crash) is recorded with its traceback and not
     cached: the next run tries again."""
-    from neoedit.utils.threads import configure_threads
+    from neoedit.utils.threads import configure_threads, max_threads
 
     if ctx.threads is not None:  # else the process's own budget (--threads / NEO_THREADS)
-        configure_threads(ctx.threads)
+        configure_threads(min(ctx.threads, max_threads()))  # a worker may have fewer cores
     _seed_everything(ctx.seed)
     folder = ctx.unit_dir(unit.id)
     if folder.exists():  # a stale or interrupted unit of this run folder

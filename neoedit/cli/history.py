@@ -83,13 +83,13 @@ class LogCommand:
         from neoedit.scene import read_scene_meta
 
         meta = read_scene_meta(Path(self.scene))
-        edits = [r for r in meta.edits if r.version]  # the lineage that led to this folder
+        edits = list(meta.edits)  # the lineage that led to this folder
         root = edits[0].parent if edits else meta.version_id
         trained = {"version_id": root or "?", "train_seconds": meta.train_seconds}
         table.add_row(*_row("" if edits else str(self.scene), trained, "-", None))
         for k, rec in enumerate(edits):
             name = str(self.scene) if k == len(edits) - 1 else ""
-            one = {"edits": [rec.to_dict()], "version_id": rec.version}
+            one = {"edits": [rec.to_dict()], "version_id": rec.version or "?"}
             table.add_row(*_row(name, one, rec.parent or "-", None))
         console.print(table)
 

@@ -130,8 +130,8 @@ def _check_not_into_cuts(parent: Scene, targets: list[OrientedBox]) -> None:
         if any(box_iou_3d(t, c) > 0 for c in pending):
             raise NeoError(
                 "the target box meets a box this version removes at render time (a removal "
-                "without inpainting): a preview move there would be cut away too; move "
-                "without --preview, or remove with inpainting first"
+                "without inpainting): a preview move there would be cut away too; make the "
+                "full move (neo move without --preview), or remove with inpainting first"
             )
 
 

@@ -72,6 +72,7 @@ class SimWorld:
         for k, obj in enumerate(spec.objects):
             self._load_object(obj, FIRST_OBJECT_ID + k)
         self.settle()
+        self._check_on_table()  # the scene as placed (an action may knock one off later)
 
     # -- construction ------------------------------------------------------------------------
     def _load_static(self) -> None:
@@ -146,11 +147,10 @@ class SimWorld:
             pb.stepSimulation(physicsClientId=self.client)
             if i > PHYSICS_HZ // 4 and i % 24 == 0 and self._at_rest():
                 break
-        self._check_on_table()
 
     def _check_on_table(self, below_m: float = 0.05) -> None:
-        """Every object rests on the table: one placed beyond its edge falls out of every
-        view, and a scan of it would edit nothing anyone can see."""
+        """Every object placed by the spec rests on the table: one placed beyond its edge
+        falls out of every view, and a scan of it would edit nothing anyone can see."""
         for name, body in self.bodies.items():
             low = float(self.object_vertices_world_for(body)[:, 2].min())
             if low < -below_m:

@@ -91,7 +91,12 @@ field, NEO-Sim 64x48 scan): 30,000 rays per batch peaked 1.0 GB above 2,048 rays
 ray; this estimate gives 37 KB (32 samples x 288 values x 4 bytes)."""
 
 
-def check_step_memory(rays: int, field_cfg: RadianceFieldConfig, render_cfg: RenderConfig) -> None:
+def check_step_memory(
+    rays: int,
+    field_cfg: RadianceFieldConfig,
+    render_cfg: RenderConfig,
+    device: torch.device | None = None,
+) -> None:
     """Refuse a ``--rays-per-batch`` whose training step cannot fit in the free memory
     (hash features and MLP activations of every fine sample of every ray), before the data
     is loaded, instead of the process being killed mid-step."""
@@ -102,7 +107,16 @@ def check_step_memory(rays: int, field_cfg: RadianceFieldConfig, render_cfg: Ren
         + 2 * field_cfg.hidden_dim_color
     )
     need = rays * render_cfg.n_samples * per_sample * BYTES_PER_SAMPLE_VALUE
-    check_memory(need, f"a training step of --rays-per-batch {rays}")
+    what = f"a training step of --rays-per-batch {rays}"
+    if device is not None and device.type == "cuda":
+        free = torch.cuda.mem_get_info(device)[0]
+        if need > free:
+            raise NeoError(
+                f"{what} needs about {need / 2**30:.1f} GiB of GPU memory, "
+                f"{free / 2**30:.1f} GiB are free"
+            )
+        return
+    check_memory(need, what)
 
 
 def check_finite_weights(field: torch.nn.Module, steps: int) -> None:

@@ -266,13 +266,14 @@ class Trainer:
         if self.appearance is not None:
             loss = loss + self.appearance.penalty()
             self.appearance.zero_grad()
-        check_finite_loss(float(loss.detach()), step, "training", "--lr or the loss weights")
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         self.optimizer.step()
         if self.appearance is not None:
             self.appearance.step()
-        return float(mse.detach())
+        mse_value, loss_value = torch.stack([mse.detach(), loss.detach()]).tolist()  # one sync
+        check_finite_loss(loss_value, step, "training", "--lr or the loss weights")
+        return mse_value
 
     def depth_loss(
         self,
@@ -413,7 +414,7 @@ def train(
             "and start a store from it with neo plan"
         )
     check_step_memory(
-        cfg.rays_per_batch, field_cfg or RadianceFieldConfig(), render_cfg or RenderConfig()
+        cfg.rays_per_batch, field_cfg or RadianceFieldConfig(), render_cfg or RenderConfig(), dev
     )
     torch.manual_seed(cfg.seed)
     data = load_scene_data(data_path, data_cfg)

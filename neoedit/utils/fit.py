@@ -52,11 +52,11 @@ def fit(
                 for g, lr in zip(optimizer.param_groups, base_lr, strict=True):
                     g["lr"] = lr * scale
             loss = loss_fn(step)
-            value = float(loss.detach())
-            check_finite_loss(value, step, label, "its learning rate")
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             optimizer.step()
+            value = float(loss.detach())
+            check_finite_loss(value, step, label, "its learning rate")
             ema = value if ema is None else 0.9 * ema + 0.1 * value
             text = status(step, ema) if status is not None else f"loss {ema:.4f}"
             progress.update(task, advance=1, status=text)

@@ -206,7 +206,7 @@ class ViewerState:
             self.discard_preview()
             return None
         transform = motion_about(np.asarray(result.box.center_m), t, float(yaw_deg))
-        cfg = dataclasses.replace(self.cfg.move, preview=True)
+        cfg = dataclasses.replace(self.cfg.move, preview=True, reuse_removal_patch=False)
         with torch.no_grad():
             preview = sketch(scene, Move([Motion(result.box, transform)], cfg, result.prompt))
         target = OrientedBox.from_dict(preview.meta.moves[-1]["target"])
