@@ -117,9 +117,8 @@ def at_least(minimum: int, default: Any = None) -> Any:
 
 
 def at_least_one(default: int) -> Any:
-    """A count option that means nothing below 1 (``views: int = at_least_one(3)``): the
-    one range check refuses 0 and negatives with one message."""
-    return dataclasses.field(default=default, metadata={"min": 1})
+    """A count option that means nothing below 1 (``views: int = at_least_one(3)``)."""
+    return at_least(1, default)
 
 
 def _check_number(name: str, value: Any, f: dataclasses.Field, where: str) -> None:
