@@ -398,10 +398,10 @@ def test_previews_are_sketches_whatever_the_commit_options(move_scene: Path):
     is never changed by a preview."""
     import dataclasses
 
+    from test_language import SPARSE  # the tiny scan's sparse cloud: looser clustering
+
     from neoedit.edit.motion import MoveConfig
     from neoedit.viewer.state import ViewerConfig, ViewerState
-
-    from test_language import SPARSE  # the tiny scan's sparse cloud: looser clustering
 
     move = dataclasses.replace(MoveConfig(), reuse_removal_patch=True)
     cfg = ViewerConfig(query=SPARSE, move=move)

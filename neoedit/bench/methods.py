@@ -74,6 +74,7 @@ ABLATIONS: dict[str, Callable[[MoveConfig], MoveConfig]] = {
     ),
     "no-shadow-follow": lambda c: dataclasses.replace(c, shadow_follows=False),
     "distil-target": lambda c: dataclasses.replace(c, carry=False),
+    "no-relight": lambda c: dataclasses.replace(c, relight=False),
 }
 ASSEMBLY_METHODS = ("neo", "seal3d", "oracle")
 ALL_METHODS = tuple(dict.fromkeys((*REMOVAL_METHODS, *MOVE_METHODS, *ABLATIONS)))
@@ -95,6 +96,7 @@ LABELS = {
     "no-shadow": "w/o shadow removal at the source (nor laid at the target)",
     "no-shadow-follow": "shadow removed at the source, not laid at the target",
     "distil-target": "moved object distilled (the paper's student), not carried",
+    "no-relight": "carried object keeps the scan's shading (not relit)",
 }
 
 

@@ -30,7 +30,7 @@ class BenchCommand:
     """Methods to run where they apply (default: all): pre-edit resample suppress neo
     nerfiller nerfiller-no-depth seal3d preview oracle and the ablations no-virtual-views
     no-grid-inpaint no-mask-cond field-distill-only no-shadow no-shadow-follow
-    distil-target."""
+    distil-target no-relight."""
     data: Path | None = None
     """Reuse this NEO-Sim suite (neo sim benchmark --out DATA, same profile) instead of
     simulating the scenes."""

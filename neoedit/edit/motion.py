@@ -74,6 +74,12 @@ class MoveConfig:
     target: a shade, a ratio map on the target's support (neoedit/fields/shade.py),
     translated with the object. NEO's carried object only (``carry``, the patch student, not
     ``preview``): a distilled target learns from a teacher without it."""
+    relight: bool = True
+    """A carried object is relit: the scan's light is estimated from the object as the
+    scan's views show it (neoedit/edit/relight.py) and its colours take the shading of
+    their new orientation (a turned object's lit side no longer stays lit; a translation
+    reads no light). NEO's carried object only (``carry``, the patch student). Measured on
+    NEO-Sim pick_place_1 (yaw 45): In +0.15-0.18 dB, the mug's pixels +0.28 dB; +1.7 s."""
     student: Student = "patch"
     """'patch': the student is a new patch of the field, initialised from the current
     weights, owning the source boxes with the support under them (its MLPs learn at

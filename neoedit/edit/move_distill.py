@@ -20,6 +20,14 @@ from neoedit.edit.distill import DistillConfig, RayPool, distill
 from neoedit.edit.inpaint import Inpainter
 from neoedit.edit.motion import MoveConfig
 from neoedit.edit.pipeline import Timings
+from neoedit.edit.relight import (
+    MIN_TURN_DEG,
+    Light,
+    estimate_light,
+    relight_grid,
+    turn_deg,
+    weights_region,
+)
 from neoedit.edit.remove import inpaint_removal
 from neoedit.edit.views import VirtualViewConfig, concat_cameras, virtual_cameras
 from neoedit.fields.composed import ComposedField, MaskedField, TransformedField
@@ -68,6 +76,26 @@ def _teacher(
     base = MaskedField(removed.field, removed.grid.is_occupied)
     timings = {f"inpaint_{k}": v for k, v in timings.items()}
     return ComposedField(base, moved_parts(parent, targets, transforms)), removed.patched(), timings
+
+
+def scan_light(
+    parent: Scene, sources: list[OrientedBox], transforms: list[np.ndarray]
+) -> Light | None:
+    """The scan's light read from the objects at ``sources``, when a motion turns one (a
+    translation needs no relighting); None otherwise or when too little surface is seen."""
+    turning = any(turn_deg(t) >= MIN_TURN_DEG for t in transforms)
+    return estimate_light(parent, sources) if turning else None
+
+
+def relight_carried(patched: PatchedField, targets: list[OrientedBox], light: Light) -> None:
+    """Give each carried part (the last ``len(targets)`` parts of ``patched``) the shading
+    of its orientation under ``light`` (its total motion: a part carried again is relit from
+    the scan's weights)."""
+    parts = list(patched.parts)[len(patched.parts) - len(targets) :]
+    for target, part in zip(targets, parts, strict=True):
+        part = cast(TransformedField, part)
+        lo, hi = weights_region(target, part.matrix())
+        part.relight = relight_grid(part.field, lo, hi, part.matrix()[:3, :3], light)
 
 
 def base_field(field_: Field) -> RadianceField:
@@ -200,6 +228,11 @@ def distil_move(
     inpainted with them; ``shades`` (slab, ratio map): the shadows laid around the targets
     of a carried object."""
     shadows = shadows or []
+    light = None
+    if cfg.relight and cfg.carry and cfg.student == "patch":  # first: it fails before the work
+        with timings.stage("light"):
+            light = scan_light(parent, sources, transforms)
+        child.meta.edits[-1].details["light"] = None if light is None else light.to_dict()
     with timings.stage("teacher"):
         teacher, removed, built = _teacher(
             parent, sources, targets, transforms, cfg, inpainter, shadows
@@ -234,6 +267,9 @@ def distil_move(
                 parent.meta.render, parent.background, dcfg,
                 view=child.field if patch_mode else None,
             )  # fmt: skip
+    if light is not None and light.usable:
+        with timings.stage("relight"):
+            relight_carried(child.patched(), targets, light)
     if carried is not None and shades:
         # after the distillation (the teacher has no shades: a student under one would learn
         # to undo it), under the carried objects (their own colours stay)

@@ -15,6 +15,7 @@ import torch
 from torch import nn
 
 from neoedit.fields.radiance import Field
+from neoedit.fields.relight import Relight
 from neoedit.geometry import OrientedBox, points_in_box
 
 
@@ -24,11 +25,15 @@ class TransformedField(nn.Module):
 
     """``field`` moved by the rigid world motion ``transform`` (4,4): at x it answers what
     ``field`` answers at T^-1 x, seen along R^-1 d (so a view-dependent highlight turns
-    with the object)."""
+    with the object), its colours times ``relight``'s ratio there when one is set (the
+    shading under the world's light, :mod:`neoedit.fields.relight`)."""
 
-    def __init__(self, field: Field, transform: np.ndarray):
+    relight: Relight | None
+
+    def __init__(self, field: Field, transform: np.ndarray, relight: Relight | None = None):
         super().__init__()
         self.field = field
+        self.relight = relight
         t = np.asarray(transform, dtype=np.float64)
         self._matrix = t.copy()
         device = field.aabb.device  # the motion lives where the field does
@@ -57,7 +62,11 @@ class TransformedField(nn.Module):
     def forward(
         self, points: torch.Tensor, directions: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        return self.field(self.source_points(points), directions @ self.rotation)
+        source = self.source_points(points)
+        sigma, rgb = self.field(source, directions @ self.rotation)
+        if self.relight is not None and len(points):
+            rgb = (rgb * self.relight.ratio_at(source)[:, None].to(rgb)).clamp(0.0, 1.0)
+        return sigma, rgb
 
 
 def region_owner(points: torch.Tensor, regions: Sequence[Sequence[OrientedBox]]) -> torch.Tensor:

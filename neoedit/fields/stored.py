@@ -14,8 +14,10 @@ from typing import Any, cast
 import numpy as np
 import torch
 
+from neoedit.fields.composed import TransformedField
 from neoedit.fields.patched import PatchedField
 from neoedit.fields.radiance import RadianceField
+from neoedit.fields.relight import Relight
 from neoedit.fields.shade import Shade
 from neoedit.geometry import OrientedBox
 
@@ -70,6 +72,13 @@ def part_records(
     return new_patches, new_shades
 
 
+def _load_part(part: torch.nn.Module, state: dict[str, torch.Tensor]) -> None:
+    """Load a part's state; a relit carried part gets its grid (shaped as stored) first."""
+    if isinstance(part, TransformedField) and "relight.ratio" in state:
+        part.relight = Relight.like(prefixed(state, "relight."))
+    part.load_state_dict(state)
+
+
 def load_parts(
     patched: PatchedField,
     patches: list[dict[str, Any]],
@@ -82,12 +91,12 @@ def load_parts(
     for i, p in enumerate(patches):
         state = prefixed(tensors, f"patch{i}.")
         if i < len(patched.patches):
-            patched.patches[i].load_state_dict(state)
+            _load_part(patched.patches[i], state)
             continue
         region = [OrientedBox.from_dict(b) for b in p["region"]]
         if "transform" in p:  # a carried part: frozen weights under a motion
             motion = np.asarray(p["transform"], dtype=np.float64)
-            patched.add_carried(region, motion, patched.base).load_state_dict(state)
+            _load_part(patched.add_carried(region, motion, patched.base), state)
         else:
             patched.add_patch(region).load_state_dict(state)
     for i, entry in enumerate(shades):
