@@ -25,6 +25,7 @@ from neoedit.edit.relight import (
     Light,
     estimate_light,
     relight_grid,
+    relight_step_m,
     turn_deg,
     weights_region,
 )
@@ -78,24 +79,47 @@ def _teacher(
     return ComposedField(base, moved_parts(parent, targets, transforms)), removed.patched(), timings
 
 
+def total_motions(
+    parent: Scene, sources: list[OrientedBox], transforms: list[np.ndarray]
+) -> list[np.ndarray]:
+    """Per source: the motion its carried part will have over the scan's weights (this
+    edit's after the one that carried the object there, if any)."""
+    pf = parent.field
+    totals = []
+    for source, motion in zip(sources, transforms, strict=True):
+        inside = pf.renderer_inside(source) if isinstance(pf, PatchedField) else None
+        earlier = inside.matrix() if isinstance(inside, TransformedField) else np.eye(4)
+        totals.append(np.asarray(motion, dtype=np.float64) @ earlier)
+    return totals
+
+
 def scan_light(
     parent: Scene, sources: list[OrientedBox], transforms: list[np.ndarray]
-) -> Light | None:
-    """The scan's light read from the objects at ``sources``, when a motion turns one (a
-    translation needs no relighting); None otherwise or when too little surface is seen."""
-    turning = any(turn_deg(t) >= MIN_TURN_DEG for t in transforms)
-    return estimate_light(parent, sources) if turning else None
+) -> tuple[Light | None, str]:
+    """The scan's light read from the objects at ``sources`` when a carried object ends up
+    turned from where the scan saw it (a translation needs no relighting, but a turned and
+    relit object moved again still does), and what became of it (for the record)."""
+    if all(turn_deg(t) < MIN_TURN_DEG for t in total_motions(parent, sources, transforms)):
+        return None, "no turn"
+    light = estimate_light(parent, sources)
+    if light is None:
+        return None, "too little surface seen"
+    return light, "used" if light.usable else "the light explains too little of the brightness"
 
 
 def relight_carried(patched: PatchedField, targets: list[OrientedBox], light: Light) -> None:
-    """Give each carried part (the last ``len(targets)`` parts of ``patched``) the shading
-    of its orientation under ``light`` (its total motion: a part carried again is relit from
-    the scan's weights)."""
+    """Give each carried part (the last ``len(targets)`` parts of ``patched``) that is
+    turned the shading of its orientation under ``light`` (its total motion: a part carried
+    again is relit from the scan's weights); a part that is not turned gets none."""
     parts = list(patched.parts)[len(patched.parts) - len(targets) :]
     for target, part in zip(targets, parts, strict=True):
         part = cast(TransformedField, part)
+        if turn_deg(part.matrix()) < MIN_TURN_DEG:
+            part.relight = None
+            continue
         lo, hi = weights_region(target, part.matrix())
-        part.relight = relight_grid(part.field, lo, hi, part.matrix()[:3, :3], light)
+        step = relight_step_m(target)
+        part.relight = relight_grid(part.field, lo, hi, part.matrix()[:3, :3], light, step)
 
 
 def base_field(field_: Field) -> RadianceField:
@@ -231,8 +255,9 @@ def distil_move(
     light = None
     if cfg.relight and cfg.carry and cfg.student == "patch":  # first: it fails before the work
         with timings.stage("light"):
-            light = scan_light(parent, sources, transforms)
-        child.meta.edits[-1].details["light"] = None if light is None else light.to_dict()
+            light, outcome = scan_light(parent, sources, transforms)
+        found = {} if light is None else light.to_dict()
+        child.meta.edits[-1].details["light"] = {**found, "used": outcome == "used", "why": outcome}
     with timings.stage("teacher"):
         teacher, removed, built = _teacher(
             parent, sources, targets, transforms, cfg, inpainter, shadows

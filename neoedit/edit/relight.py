@@ -262,17 +262,30 @@ def estimate_light(scene: Scene, boxes: list[OrientedBox]) -> Light | None:
     return fit_light(np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts]))
 
 
+def relight_step_m(box: OrientedBox) -> float:
+    """The normals' step for an object in ``box`` (:data:`STEPS`)."""
+    return _step_m(np.asarray(box.size_m))
+
+
 def relight_grid(
-    field: Field, lo: np.ndarray, hi: np.ndarray, rotation: np.ndarray, light: Light, n: int = GRID
+    field: Field,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    rotation: np.ndarray,
+    light: Light,
+    step_m: float | None = None,
+    n: int = GRID,
 ) -> Relight:
     """The ratio ``shade(R n) / shade(n)`` over the box ``lo``..``hi`` of ``field``'s
     coordinates, for an object turned by ``rotation`` (3,3) under ``light``; fading to 1
-    away from surfaces (nothing to relight)."""
+    away from surfaces (nothing to relight). ``step_m``: the normals' step (default: from
+    the grid's box; give the object box's, :func:`relight_step_m`, when the grid's box is
+    the bounds of a turned one)."""
     lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
     axes = [np.linspace(lo[k], hi[k], n) for k in range(3)]
     centres = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
     points = torch.as_tensor(centres, dtype=torch.float32, device=field.aabb.device)
-    step = _step_m(hi - lo)
+    step = _step_m(hi - lo) if step_m is None else step_m
     with torch.no_grad():
         sigma = torch.cat([field.density(c) for c in points.split(65536)])
     opacity = (1 - torch.exp(-sigma * step)).reshape(n, n, n).cpu().numpy()
