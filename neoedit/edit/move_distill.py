@@ -25,9 +25,7 @@ from neoedit.edit.relight import (
     Light,
     estimate_light,
     relight_grid,
-    relight_step_m,
     turn_deg,
-    weights_region,
 )
 from neoedit.edit.remove import inpaint_removal
 from neoedit.edit.views import VirtualViewConfig, concat_cameras, virtual_cameras
@@ -114,12 +112,8 @@ def relight_carried(patched: PatchedField, targets: list[OrientedBox], light: Li
     parts = list(patched.parts)[len(patched.parts) - len(targets) :]
     for target, part in zip(targets, parts, strict=True):
         part = cast(TransformedField, part)
-        if turn_deg(part.matrix()) < MIN_TURN_DEG:
-            part.relight = None
-            continue
-        lo, hi = weights_region(target, part.matrix())
-        step = relight_step_m(target)
-        part.relight = relight_grid(part.field, lo, hi, part.matrix()[:3, :3], light, step)
+        if turn_deg(part.matrix()) >= MIN_TURN_DEG:
+            part.relight = relight_grid(part.field, target, part.matrix(), light)
 
 
 def base_field(field_: Field) -> RadianceField:
@@ -252,8 +246,11 @@ def distil_move(
     inpainted with them; ``shades`` (slab, ratio map): the shadows laid around the targets
     of a carried object."""
     shadows = shadows or []
+    # the object carried under the motion: NEO's patch student (a whole-field student
+    # distils everything, so --edit.carry does not apply to it)
+    carry = cfg.carry and cfg.student == "patch"
     light = None
-    if cfg.relight and cfg.carry and cfg.student == "patch":  # first: it fails before the work
+    if cfg.relight and carry:  # first: it fails before the work
         with timings.stage("light"):
             light, outcome = scan_light(parent, sources, transforms)
         found = {} if light is None else light.to_dict()
@@ -277,9 +274,6 @@ def distil_move(
         dcfg = _distil_config(cfg, patch_mode)
         keep = removed if patch_mode and cfg.reuse_removal_patch else None
         source_regions = regions[: len(emptied)]
-        # the object carried under the motion: NEO's patch student (a whole-field student
-        # distils everything, so --edit.carry does not apply to it)
-        carry = cfg.carry and patch_mode
         carried = list(zip(sources, transforms, strict=True)) if carry else None
         students = _students(
             parent, child, source_regions, targets, dcfg, patch_mode, keep, carried

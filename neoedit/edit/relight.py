@@ -13,7 +13,7 @@ object's colours are then multiplied by ``shade(R n) / shade(n)`` on a grid over
 weights (:class:`~neoedit.fields.relight.Relight`).
 
 Measured on NEO-Sim pick_place_1 (PyBullet's light: ambient 0.55, diffuse 0.45, direction
-(0.4, 0.3, 1)): the direction within 1.2 degrees, the diffuse term 0.31 (0.82 in the
+(0.4, 0.3, 1)): the direction within 1.2 degrees, the diffuse term 0.29 (0.82 in the
 simulator: the fit under-reads it; the truth's value gains 0.1 dB more); benchmarks/RESULTS.md
 has what it changes.
 """
@@ -89,7 +89,6 @@ class Light:
             "diffuse_over_ambient": round(self.diffuse, 4),
             "fit": round(self.fit, 4),
             "points": self.points,
-            "used": self.usable,
         }
 
 
@@ -262,30 +261,19 @@ def estimate_light(scene: Scene, boxes: list[OrientedBox]) -> Light | None:
     return fit_light(np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts]))
 
 
-def relight_step_m(box: OrientedBox) -> float:
-    """The normals' step for an object in ``box`` (:data:`STEPS`)."""
-    return _step_m(np.asarray(box.size_m))
-
-
 def relight_grid(
-    field: Field,
-    lo: np.ndarray,
-    hi: np.ndarray,
-    rotation: np.ndarray,
-    light: Light,
-    step_m: float | None = None,
-    n: int = GRID,
+    field: Field, target: OrientedBox, motion: np.ndarray, light: Light, n: int = GRID
 ) -> Relight:
-    """The ratio ``shade(R n) / shade(n)`` over the box ``lo``..``hi`` of ``field``'s
-    coordinates, for an object turned by ``rotation`` (3,3) under ``light``; fading to 1
-    away from surfaces (nothing to relight). ``step_m``: the normals' step (default: from
-    the grid's box; give the object box's, :func:`relight_step_m`, when the grid's box is
-    the bounds of a turned one)."""
-    lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
+    """The ratio ``shade(R n) / shade(n)`` for an object carried by ``motion`` (4,4) into
+    ``target``, over the region of ``field``'s coordinates that the target reads
+    (:func:`weights_region`), under ``light``; fading to 1 away from surfaces (nothing to
+    relight)."""
+    lo, hi = weights_region(target, motion)
+    rotation = np.asarray(motion, dtype=np.float64)[:3, :3]
     axes = [np.linspace(lo[k], hi[k], n) for k in range(3)]
     centres = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
     points = torch.as_tensor(centres, dtype=torch.float32, device=field.aabb.device)
-    step = _step_m(hi - lo) if step_m is None else step_m
+    step = _step_m(np.asarray(target.size_m))  # the object's box, not the turned bounds
     with torch.no_grad():
         sigma = torch.cat([field.density(c) for c in points.split(65536)])
     opacity = (1 - torch.exp(-sigma * step)).reshape(n, n, n).cpu().numpy()
@@ -297,7 +285,7 @@ def relight_grid(
     if len(idx):
         gradient = _gradient(field, points[torch.as_tensor(idx, device=points.device)], step)
         normals = _outward(gradient).cpu().numpy().astype(np.float64)
-        turned = light.shading(normals @ np.asarray(rotation).T) / light.shading(normals)
+        turned = light.shading(normals @ rotation.T) / light.shading(normals)
         weight = np.clip(gradient.norm(dim=-1).cpu().numpy() / SURFACE, 0.0, 1.0)
         ratio[idx] = 1.0 + weight * (turned - 1.0)
     device = field.aabb.device
