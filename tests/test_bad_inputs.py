@@ -133,7 +133,7 @@ CASES = [
     C("remove-out-is-scene", "remove {scene} --box mug.json --out {scene} --no-inpaint", 2, "never overwrites", MUG),
     C("remove-out-in-scene", "remove {scene} --box mug.json --out {scene}/v --no-inpaint", 2, "inside the input", MUG),
     C("remove-exists", "remove {scene} --box mug.json --out scene2 --no-inpaint", 2, "already exists", chain(MUG, SCENE2)),
-    C("remove-ok", "remove {scene} --box mug.json --out v1 --no-inpaint", 0, "wrote", MUG, ("v1/scene.json",)),
+    C("remove-ok", "remove {scene} --box mug.json --out v1 --no-inpaint --no-report", 0, "wrote", MUG, ("v1/scene.json",)),
     C("move-huge-yaw", "move {scene} --box mug.json --translate 0 0 0 --yaw 1e300 --out v", 2, "--yaw is in degrees", MUG),
     C("move-no-distill-rays", "move {scene} --box mug.json --translate 0.02 0 0 --out v --edit.distill.rays 0", 2, "--edit.distill.rays must be", MUG),
     C("move-seal3d-preview", "move {scene} --box mug.json --translate 0.02 0 0 --out v --method seal3d --preview", 2, "do not combine", MUG),
@@ -297,7 +297,7 @@ CASES = [
     C("sim-scene-huge-width", "sim scene spec.yaml --out s", 2, "8 to 4096 pixels", write("spec.yaml", "name: s\nobjects:\n  - {name: mug, urdf: 'pybullet_data:objects/mug.urdf'}\nscan: {width: 1000000}\n")),
     C("sim-execute-malformed", "sim execute bad --action 1 --grasp g.json --out e", 2, "not a NEO-Sim scene folder", chain(write("bad/scene.json", [1, 2]), write("g.json", {"position_m": [0, 0, 0.1], "rotation": np.eye(3).tolist(), "width_m": 0.05}))),
     C("render-overwrite-keeps-user-file", "render {scene} --out r --views eval --overwrite", 2, "holds files neoedit did not write (images/mine.txt)", chain(neo_first("render {scene} --out r --views eval"), write("r/images/mine.txt", "my notes"))),
-    C("remove-overwrite-keeps-user-file", "remove {scene} --box mug.json --out v --no-inpaint --overwrite", 2, "holds files neoedit did not write (notes.txt)", chain(MUG, neo_first("remove {scene} --box mug.json --out v --no-inpaint"), write("v/notes.txt", "mine"))),
+    C("remove-overwrite-keeps-user-file", "remove {scene} --box mug.json --out v --no-inpaint --overwrite", 2, "holds files neoedit did not write (notes.txt)", chain(MUG, neo_first("remove {scene} --box mug.json --out v --no-inpaint --no-report"), write("v/notes.txt", "mine"))),
     # 16. a render never overwrites its own outputs
     C("render-cameras-named-transforms", "render {scene} --cameras cams.json --out r", 2, "would overwrite the render's own transforms.json", cameras_frame(file_path="transforms.json")),
     C("render-cameras-under-depth", "render {scene} --cameras cams.json --out r", 2, "would overwrite the render's own depth", cameras_frame(file_path="depth/x.png")),
@@ -439,10 +439,12 @@ def test_log_of_an_edited_folder_lists_its_lineage_once(golden, tmp_path: Path, 
                 "--out",
                 str(out),
                 "--no-inpaint",
+                "--no-report",
             ]
         )
         == 0
     )
+    assert not (out / "report").exists()  # --no-report: the version alone
     edit_id = ws.path("v1/scene.json")
     capsys.readouterr()
     assert main(["log", str(out)]) == 0

@@ -13,12 +13,17 @@ from pathlib import Path
 import pytest
 
 from neoedit.bench import BenchConfig, run_bench
-from neoedit.bench.methods import ABLATIONS, MOVE_METHODS, REMOVAL_METHODS
+from neoedit.bench.methods import ABLATIONS, MOVE_METHODS, REMOVAL_METHODS, move_config
 from neoedit.bench.runner import prepare
 from neoedit.bench.units import plan_units, unit_keys
 from neoedit.errors import NeoError
 
 SCENES = ("removal_1", "pick_place_1")
+SUITE_ABLATIONS = ("field-distill-only", "distil-target")
+"""The ablations the small run below carries through the whole bench: the two that take
+another student (the whole field; the moved object distilled, not carried). The others
+flip one option of the same NEO move; each is checked to change exactly that option
+(:func:`test_each_ablation_changes_only_what_it_names`), not re-run end to end here."""
 
 
 def test_plan_has_one_unit_per_applicable_method_and_dependencies_first():
@@ -150,6 +155,44 @@ def test_an_unrelated_out_folder_is_refused(tmp_path: Path):
     assert (tmp_path / "mine" / "notes.txt").read_text() == "keep me"
 
 
+def _leaves(value, path: str = "") -> dict[str, object]:
+    """A configuration's leaves by dotted path."""
+    if isinstance(value, dict):
+        return {
+            k: v for key, sub in value.items() for k, v in _leaves(sub, f"{path}.{key}").items()
+        }
+    return {path.lstrip("."): value}
+
+
+ABLATION_SWITCHES = {
+    "no-virtual-views": "virtual_views",
+    "no-grid-inpaint": "remove.refine.grid",
+    "no-mask-cond": "remove.refine.mask_conditioned",
+    "field-distill-only": "field_only",
+    "no-shadow": "remove.shadow.enabled",
+    "no-shadow-follow": "shadow_follows",
+    "distil-target": "carry",
+    "no-relight": "relight",
+}
+"""Each ablation and the one option of ``MoveConfig`` it flips."""
+
+
+@pytest.mark.parametrize(("ablation", "option"), ABLATION_SWITCHES.items())
+def test_each_ablation_changes_only_what_it_names(ablation: str, option: str):
+    """An ablation is NEO's move with one switch flipped, the one its label names, at the
+    small profile's scale as at full scale (so a table row measures that switch alone)."""
+    for scale in (1.0, 0.3):
+        neo = _leaves(dataclasses.asdict(move_config("neo", scale)))
+        ablated = _leaves(dataclasses.asdict(move_config(ablation, scale)))
+        assert {k for k in neo if neo[k] != ablated[k]} == {option}, ablation
+        assert neo[option] is (ablation != "field-distill-only")  # NEO's default: on
+        assert ablated[option] is not neo[option]
+
+
+def test_every_ablation_has_its_switch_listed():
+    assert ABLATION_SWITCHES.keys() == ABLATIONS.keys()
+
+
 @pytest.fixture(scope="module")
 def small_run(sim_root: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[BenchConfig, dict]:
     """Every method on one removal and one pick-and-place scene of the small profile, here,
@@ -160,6 +203,7 @@ def small_run(sim_root: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple
         out=tmp_path_factory.mktemp("bench") / "run",
         data=sim_root,
         scenes=SCENES,
+        methods=(*dict.fromkeys((*REMOVAL_METHODS, *MOVE_METHODS)), *SUITE_ABLATIONS),
         workers=1,
         threads=1,
     )
@@ -176,13 +220,13 @@ def _table(report: str, title: str) -> list[list[str]]:
 def test_small_bench_fills_every_table_with_finite_numbers(small_run):
     cfg, summary = small_run
     assert summary["failed"] == []
-    n_units = 2 + 2 + len(REMOVAL_METHODS) + len(MOVE_METHODS) + len(ABLATIONS)
+    n_units = 2 + 2 + len(REMOVAL_METHODS) + len(MOVE_METHODS) + len(SUITE_ABLATIONS)
     assert summary["units"] == summary["ran"] == n_units
     report = (cfg.out / "REPORT.md").read_text()
     for title, methods, regions in (
         ("Table I", REMOVAL_METHODS, 2),  # Full, Out
         ("Table II", MOVE_METHODS, 3),  # Out, In, Full
-        ("Table III", ("neo", *ABLATIONS), 2),  # Out, In
+        ("Table III", ("neo", *SUITE_ABLATIONS), 2),  # Out, In
     ):
         rows = _table(report, title)
         assert len(rows) == len(methods), title

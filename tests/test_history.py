@@ -119,7 +119,7 @@ def chain(move_scene: Path, tmp_path_factory) -> Path:
             {"type": "move", "prompt": "purple elephant", "translate_m": [0.1, 0.0, 0.0]},
         ],
     )
-    args = ["plan", str(move_scene), str(plan), "--out", str(root / "store")]
+    args = ["plan", str(move_scene), str(plan), "--out", str(root / "store"), "--no-report"]
     err = io.StringIO()
     with contextlib.redirect_stderr(err):
         assert main([*args, *PLAN_FAST, *SPARSE_ARGS]) == 2  # the last step stops the plan
@@ -131,6 +131,7 @@ def test_plan_writes_a_chain_every_verb_accepts(chain: Path, move_scene: Path, c
     store = SceneStore(chain)
     assert store.names() == ["step_0", "step_1", "step_2", "step_3"]  # kept before the stop
     assert store.current == "step_3" and (chain / "plan.png").is_file()
+    assert not any((chain / f"step_{k}" / "report").exists() for k in (1, 2, 3))  # --no-report
     message = " ".join((chain.parent / "stderr.txt").read_text().split())
     assert "step 4 (move 'purple elephant')" in message and "the plan stopped" in message
     first, fine = load_scene(chain / "step_1"), load_scene(chain / "step_2")
@@ -423,6 +424,8 @@ def test_a_preview_plan_trains_nothing_and_each_step_sees_the_last(
     found = OrientedBox.from_dict(removed.meta.edits[-1].details["boxes"][0])
     assert np.linalg.norm(np.subtract(found.center_m, target.center_m)[:2]) < 0.03
     assert removed.meta.cut_boxes and removed.meta.moves  # both render-time, nothing trained
+    assert all((out / f"step_{k}" / "report" / "before_after.png").is_file() for k in (1, 2))
+    assert result["steps"][0]["report"] == str(out / "step_1" / "report")
     for name in ("step_1", "step_2"):  # a preview stores no new field content
         entries = SceneStore(out).info(name).manifest["groups"]["field"]["tensors"]
         assert all(e["enc"] != "full" for k, e in entries.items() if k.startswith("field."))

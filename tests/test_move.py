@@ -166,6 +166,7 @@ def test_move_end_to_end(move_scene: Path, sim_root: Path, tmp_path: Path):
     args = ["move", str(move_scene), action["object"], "--transform", str(tmp_path / "t.json")]
     assert main([*args, "--out", str(out), *FAST, *SPARSE_ARGS]) == 0
     assert tree_digest(move_scene) == before  # the input is untouched, byte for byte
+    assert (out / "report" / "before_after.png").is_file()
     moved = load_scene(out)
     # the edit is two patches, one owning the source region and one the target box; the
     # base field is the parent's, bit for bit (the rest of the scene cannot drift), plus one
@@ -250,7 +251,7 @@ def test_moved_version_is_self_contained_and_moves_again(
     preview = tmp_path / "preview"
     cmd = ["move", str(scene_copy), "--box", str(tmp_path / "box.json"), "--translate"]
     result_file = tmp_path / "move.json"
-    args = ["--out", str(preview), "--preview", "--json", str(result_file)]
+    args = ["--out", str(preview), "--preview", "--json", str(result_file), "--no-report"]
     assert main([*cmd, "0.1", "0.05", "0", "--yaw", "30", *args]) == 0
     p = load_scene(preview)
     assert p.meta.moves and p.meta.edits[-1].method == "preview"
@@ -281,7 +282,7 @@ def test_moved_version_is_self_contained_and_moves_again(
     (tmp_path / "moved_box.json").write_text(json.dumps(p.meta.moves[0]["target"]))
     again = tmp_path / "again"
     cmd2 = ["move", str(preview), "--box", str(tmp_path / "moved_box.json"), "--translate"]
-    assert main([*cmd2, "-0.05", "0", "0", "--out", str(again), *FAST]) == 0
+    assert main([*cmd2, "-0.05", "0", "0", "--out", str(again), *FAST, "--no-report"]) == 0
     a = load_scene(again)
     assert isinstance(a.field, PatchedField) and len(a.meta.patches) == 3 and not a.meta.moves
     assert a.meta.parent == p.meta.version_id and "settle_s" in a.meta.edits[-1].timings
@@ -388,6 +389,7 @@ def test_removal_updates_language_and_keeps_a_single_patch(
     action = _action(sim_root)
     out = tmp_path / "removed"
     args = ["remove", str(move_scene), action["object"], "--out", str(out), *SPARSE_ARGS]
+    args.append("--no-report")
     assert main([*args, "--steps", "30", "--rounds", "1", "--turns", "1"]) == 0
     edited = load_scene(out)
     assert isinstance(edited.field, PatchedField) and len(edited.meta.patches) == 1
@@ -423,7 +425,7 @@ def test_edited_versions_refuse_language_retraining_from_the_scan(
     (tmp_path / "box.json").write_text(json.dumps(_action(sim_root)["source_box"]))
     out = tmp_path / "preview"
     cmd = ["remove", str(move_scene), "--box", str(tmp_path / "box.json"), "--out", str(out)]
-    assert main([*cmd, "--no-inpaint"]) == 0
+    assert main([*cmd, "--no-inpaint", "--no-report"]) == 0
     step = load_scene(out).meta.step
     with pytest.raises(NeoError, match="cannot be retrained from the original scan"):
         train(
@@ -560,7 +562,7 @@ def test_the_seal3d_baseline_is_its_own_edit(move_scene: Path, sim_root: Path, t
     (tmp_path / "box.json").write_text(json.dumps(action["source_box"]))
     (tmp_path / "t.json").write_text(json.dumps(action))
     base = ["move", str(move_scene), "--box", str(tmp_path / "box.json")]
-    base += ["--transform", str(tmp_path / "t.json"), "--method", "seal3d"]
+    base += ["--transform", str(tmp_path / "t.json"), "--method", "seal3d", "--no-report"]
     refused = tmp_path / "refused"
     assert main([*base, "--preview", "--out", str(refused)]) == 2 and not refused.exists()
     schedule = ["--seal3d.schedule.field-steps", "30", "--seal3d.schedule.render-steps", "60"]

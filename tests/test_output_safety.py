@@ -311,8 +311,7 @@ def test_markup_in_an_output_path_is_printed_as_text(sim_root, tmp_path, capsys)
     """The third probe: `neo train --out 'T[/]9'` wrote the scene, then its "wrote" line
     raised MarkupError (exit 1); `[red]y[/red]` lost its brackets."""
     out = tmp_path / "T [red]y[/red] [/]"
-    argv = ["train", sim_root / "removal_1" / "pre", "--out", out, "--max-steps", "2"]
-    res = run_neo([*argv, "--skip-language", "--eval-every", "0"], capsys)
+    res = run_neo(["train", sim_root / "removal_1" / "pre", "--out", out, *TINY_TRAIN_ARGS], capsys)
     assert res.code == 0 and res.traceback is None, res
     assert f"wrote {out}" in " ".join(res.out.split())
 
@@ -326,7 +325,16 @@ def test_input_scene_is_untouched_by_every_refusal_and_success(golden, tmp_path,
     for argv in (
         ["render", ws.scene, "--out", ws.path("r")],
         ["eval", ws.scene, "--data", ws.data, "--json", ws.path("m.json")],
-        ["remove", ws.scene, "--box", ws.path("mug.json"), "--out", ws.path("v"), "--no-inpaint"],
+        [
+            "remove",
+            ws.scene,
+            "--box",
+            ws.path("mug.json"),
+            "--out",
+            ws.path("v"),
+            "--no-inpaint",
+            "--no-report",
+        ],
         ["remove", ws.scene, "--box", ws.path("mug.json"), "--out", ws.scene, "--overwrite"],
     ):
         assert run_neo(argv, capsys).traceback is None

@@ -32,13 +32,16 @@ box_strategy = st.builds(
 )
 
 
+N_RAYS = 64
+
+
 @settings(max_examples=40, deadline=None)
 @given(boxes=st.lists(box_strategy, min_size=1, max_size=3), seed=st.integers(0, 10_000))
 def test_no_sample_inside_removed_boxes(boxes, seed):
-    origins, directions = _rays(256, seed)
+    origins, directions = _rays(N_RAYS, seed)
     near, far = (
-        torch.full((256,), 0.0, dtype=torch.double),
-        torch.full((256,), 3.0, dtype=torch.double),
+        torch.full((N_RAYS,), 0.0, dtype=torch.double),
+        torch.full((N_RAYS,), 3.0, dtype=torch.double),
     )
     intervals = cut_boxes(near_far_intervals(near, far), origins, directions, boxes)
     edges = uniform_edges(
@@ -57,7 +60,7 @@ def test_no_sample_inside_removed_boxes(boxes, seed):
     outside = np.ones(len(dense), bool)
     for box in boxes:
         outside &= ~box.contains(dense)
-    expected = outside.reshape(256, -1).mean(1) * 3.0
+    expected = outside.reshape(N_RAYS, -1).mean(1) * 3.0
     np.testing.assert_allclose(intervals.total.numpy(), expected, atol=3e-3)
 
 

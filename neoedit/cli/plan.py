@@ -55,6 +55,9 @@ class PlanCommand:
     overwrite: bool = False
     """Replace an existing --json file that holds JSON that is no dataset or scene file
     (OUT, the store, is always new)."""
+    report: bool = True
+    """Render every step's before/after pictures (step_K/report/; --no-report: only
+    plan.png, seconds sooner per step)."""
     device: str = "auto"
 
     def run(self) -> None:
@@ -101,12 +104,14 @@ class PlanCommand:
                     ) from None
                 out = self.out / f"step_{k}"
                 report = functools.partial(_report, write_report, scene, child)
-                save_scene(out, child, extras=report)
+                save_scene(out, child, extras=report if self.report else None)
                 rec = child.meta.edits[-1]
                 console.print(
                     f"step {k}: {escape(str(action.label))} -> {escape(str(out))} in {rec.seconds or 0:.1f} s"
                 )
-                steps.append({"step": k, "action": action.label, **edit_result(out, child)})
+                steps.append(
+                    {"step": k, "action": action.label, **edit_result(out, child, self.report)}
+                )
                 columns.append(render_versions([child], views))
                 names.append(f"step_{k}")
                 scene = child
