@@ -13,13 +13,25 @@ from pathlib import Path
 import pytest
 
 from neoedit.bench import BenchConfig, run_bench
-from neoedit.bench.methods import ABLATIONS, MOVE_METHODS, REMOVAL_METHODS, move_config
+from neoedit.bench.methods import (
+    ABLATIONS,
+    MOVE_METHODS,
+    REMOVAL_ABLATIONS,
+    REMOVAL_METHODS,
+    move_config,
+    remove_config,
+)
 from neoedit.bench.runner import prepare
 from neoedit.bench.units import plan_units, unit_keys
 from neoedit.errors import NeoError
 
 SCENES = ("removal_1", "pick_place_1")
-SUITE_ABLATIONS = ("field-distill-only", "distil-target")
+SUITE_METHODS = tuple(
+    m for m in dict.fromkeys((*REMOVAL_METHODS, *MOVE_METHODS)) if m != "nerfiller-no-depth"
+)
+"""Every method of Tables I and II but the NeRFiller-style baseline without depth: the same
+retraining as with depth (one switch), run and checked by tests/test_nerfiller.py."""
+SUITE_ABLATIONS = ("field-distill-only", "distil-target", "inpaint-telea")
 """The ablations the small run below carries through the whole bench: the two that take
 another student (the whole field; the moved object distilled, not carried). The others
 flip one option of the same NEO move; each is checked to change exactly that option
@@ -189,8 +201,27 @@ def test_each_ablation_changes_only_what_it_names(ablation: str, option: str):
         assert ablated[option] is not neo[option]
 
 
+REMOVAL_SWITCHES = {
+    "remove-no-shadow": ("shadow.enabled", False),
+    "remove-no-grid-inpaint": ("refine.grid", False),
+    "inpaint-telea": ("inpainter", "telea"),
+    "inpaint-ns": ("inpainter", "ns"),
+}
+
+
+@pytest.mark.parametrize(("ablation", "switch"), REMOVAL_SWITCHES.items())
+def test_each_removal_ablation_changes_only_what_it_names(ablation: str, switch: tuple):
+    option, value = switch
+    for scale in (1.0, 0.3):
+        neo = _leaves(dataclasses.asdict(remove_config("neo", scale)))
+        ablated = _leaves(dataclasses.asdict(remove_config(ablation, scale)))
+        assert {k for k in neo if neo[k] != ablated[k]} == {option}, ablation
+        assert ablated[option] == value and neo["inpaint"] is ablated["inpaint"] is True
+
+
 def test_every_ablation_has_its_switch_listed():
     assert ABLATION_SWITCHES.keys() == ABLATIONS.keys()
+    assert REMOVAL_SWITCHES.keys() == REMOVAL_ABLATIONS.keys()
 
 
 @pytest.fixture(scope="module")
@@ -203,7 +234,7 @@ def small_run(sim_root: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple
         out=tmp_path_factory.mktemp("bench") / "run",
         data=sim_root,
         scenes=SCENES,
-        methods=(*dict.fromkeys((*REMOVAL_METHODS, *MOVE_METHODS)), *SUITE_ABLATIONS),
+        methods=(*SUITE_METHODS, *SUITE_ABLATIONS),
         workers=1,
         threads=1,
     )
@@ -212,7 +243,7 @@ def small_run(sim_root: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple
 
 def _table(report: str, title: str) -> list[list[str]]:
     """Rows (cells) of the first markdown table after the heading that starts with ``title``."""
-    section = report.split(f"## {title}", 1)[1]
+    section = report.split(f"## {title}", 1)[1].split("\n#", 1)[0]  # to the next heading
     rows = re.findall(r"^\| (.+) \|$", section.split("\n\n| paper", 1)[0], re.M)
     return [r.split(" | ") for r in rows[1:] if not r.startswith("---")]
 
@@ -220,13 +251,15 @@ def _table(report: str, title: str) -> list[list[str]]:
 def test_small_bench_fills_every_table_with_finite_numbers(small_run):
     cfg, summary = small_run
     assert summary["failed"] == []
-    n_units = 2 + 2 + len(REMOVAL_METHODS) + len(MOVE_METHODS) + len(SUITE_ABLATIONS)
+    n_units = 2 + 2 + len(REMOVAL_METHODS) - 1 + len(MOVE_METHODS) + len(SUITE_ABLATIONS)
+    removal_ablations = tuple(a for a in SUITE_ABLATIONS if a in REMOVAL_ABLATIONS)
     assert summary["units"] == summary["ran"] == n_units
     report = (cfg.out / "REPORT.md").read_text()
     for title, methods, regions in (
-        ("Table I", REMOVAL_METHODS, 2),  # Full, Out
+        ("Table I", tuple(m for m in REMOVAL_METHODS if m in SUITE_METHODS), 2),  # Full, Out
         ("Table II", MOVE_METHODS, 3),  # Out, In, Full
-        ("Table III", ("neo", *SUITE_ABLATIONS), 2),  # Out, In
+        ("Table I, ablations", ("neo", *removal_ablations), 2),  # Full, Out
+        ("Table III", ("neo", *(a for a in SUITE_ABLATIONS if a in ABLATIONS)), 2),  # Out, In
     ):
         rows = _table(report, title)
         assert len(rows) == len(methods), title
@@ -237,7 +270,11 @@ def test_small_bench_fills_every_table_with_finite_numbers(small_run):
             metrics = [float(c) for c in cells[2 : 2 + 4 * regions + 1]]
             assert all(math.isfinite(v) for v in metrics), (title, cells)
     units = json.loads((cfg.out / "results.json").read_text())["units"]
-    out_psnr = {m: units[f"removal_1/{m}"]["result"]["out"]["psnr"] for m in REMOVAL_METHODS}
+    out_psnr = {
+        m: units[f"removal_1/{m}"]["result"]["out"]["psnr"]
+        for m in SUITE_METHODS
+        if m in REMOVAL_METHODS
+    }
     # real behaviour, not just numbers: inpainting beats leaving the hole, the oracle is best
     assert out_psnr["neo"] > out_psnr["resample"] + 3
     assert out_psnr["neo"] > out_psnr["pre-edit"] + 5

@@ -76,8 +76,23 @@ ABLATIONS: dict[str, Callable[[MoveConfig], MoveConfig]] = {
     "distil-target": lambda c: dataclasses.replace(c, carry=False),
     "no-relight": lambda c: dataclasses.replace(c, relight=False),
 }
+REMOVAL_ABLATIONS: dict[str, Callable[[RemoveConfig], RemoveConfig]] = {
+    "remove-no-shadow": lambda c: dataclasses.replace(
+        c, shadow=dataclasses.replace(c.shadow, enabled=False)
+    ),
+    "remove-no-grid-inpaint": lambda c: dataclasses.replace(
+        c, refine=dataclasses.replace(c.refine, grid=False)
+    ),
+    "inpaint-telea": lambda c: dataclasses.replace(c, inpainter="telea"),
+    "inpaint-ns": lambda c: dataclasses.replace(c, inpainter="ns"),
+}
+"""NEO's removal with one part changed (Table I's ablations, on the removal scenes): the
+shadow search off, views inpainted one by one instead of in 2x2 composites, OpenCV's
+Telea or Navier-Stokes inpainter instead of FSR."""
 ASSEMBLY_METHODS = ("neo", "seal3d", "oracle")
-ALL_METHODS = tuple(dict.fromkeys((*REMOVAL_METHODS, *MOVE_METHODS, *ABLATIONS)))
+ALL_METHODS = tuple(
+    dict.fromkeys((*REMOVAL_METHODS, *REMOVAL_ABLATIONS, *MOVE_METHODS, *ABLATIONS))
+)
 
 LABELS = {
     "pre-edit": "pre-edit field (object still there)",
@@ -97,6 +112,10 @@ LABELS = {
     "no-shadow-follow": "shadow removed at the source, not laid at the target",
     "distil-target": "moved object distilled (the paper's student), not carried",
     "no-relight": "carried object keeps the scan's shading (not relit)",
+    "remove-no-shadow": "w/o the shadow search (the object's shadow stays)",
+    "remove-no-grid-inpaint": "w/o 2x2 grid inpainting (each view alone)",
+    "inpaint-telea": "Telea inpainter (OpenCV) instead of FSR",
+    "inpaint-ns": "Navier-Stokes inpainter (OpenCV) instead of FSR",
 }
 
 
@@ -113,10 +132,12 @@ def language_config(scale: float = 1.0) -> LanguageUpdateConfig:
 
 
 def remove_config(method: str, scale: float = 1.0) -> RemoveConfig:
-    """'resample', 'suppress' (no inpainting) or 'neo'; ``scale`` multiplies the training
-    steps (the small profile's budget)."""
+    """'resample', 'suppress' (no inpainting), 'neo' or a removal ablation; ``scale``
+    multiplies the training steps (the small profile's budget)."""
     cfg = RemoveConfig(removal="suppress" if method == "suppress" else "resample")
     cfg.refine.steps = _steps(cfg.refine.steps, scale)
+    if method in REMOVAL_ABLATIONS:
+        return REMOVAL_ABLATIONS[method](cfg)
     return cfg if method == "neo" else dataclasses.replace(cfg, inpaint=False)
 
 
@@ -210,7 +231,7 @@ def removal_edit(
     method: str, box: OrientedBox, inp: SceneInputs, name: str, scan: SceneData | None
 ) -> Edit:
     """The typed edit of one removal method of Table I (run by :func:`apply_edit`)."""
-    if method in ("resample", "suppress", "neo"):
+    if method in ("resample", "suppress", "neo", *REMOVAL_ABLATIONS):
         language = language_config(inp.edit_scale)
         return Remove([box], remove_config(method, inp.edit_scale), name, language=language)
     if method == "seal3d":

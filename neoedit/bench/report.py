@@ -11,7 +11,13 @@ from typing import Any
 import imageio.v3 as iio
 import numpy as np
 
-from neoedit.bench.methods import ABLATIONS, LABELS, MOVE_METHODS, REMOVAL_METHODS
+from neoedit.bench.methods import (
+    ABLATIONS,
+    LABELS,
+    MOVE_METHODS,
+    REMOVAL_ABLATIONS,
+    REMOVAL_METHODS,
+)
 from neoedit.bench.units import Unit, code_version
 from neoedit.bench.work import Context
 from neoedit.data import load_scene_data
@@ -84,6 +90,19 @@ def metric_table(
             cells.append(_fmt(float(np.mean(ious)) if ious else None, 2))
         lines.append("| " + " | ".join(cells) + " |")
     return lines if len(lines) > 2 else ["*(no scene of this table was in the run)*"]
+
+
+def ablation_table(
+    records: dict,
+    units: list[Unit],
+    kind: str,
+    ablations: tuple[str, ...],
+    regions: tuple[str, ...],
+) -> list[str]:
+    """NEO beside its ablations that ran on scenes of ``kind`` (a note when none ran)."""
+    if not any(u.kind == kind and u.params.get("method") in ablations for u in units):
+        return ["*(no ablation of this table was in the run)*"]
+    return metric_table(records, units, kind, ("neo", *ablations), regions)
 
 
 def paper_table(table: dict, regions: tuple[str, str]) -> list[str]:
@@ -194,6 +213,10 @@ def write_report(ctx: Context, units: list[Unit], records: dict, summary: dict[s
         "the holes (NeRFiller estimates depth from the inpainted images): it favours the "
         "baseline.",
         "",
+        "### Table I, ablations — NEO's removal with one part changed",
+        "",
+        *ablation_table(records, units, "removal", tuple(REMOVAL_ABLATIONS), ("full", "out")),
+        "",
         "## Table II — pick-and-place (mean over the pick-and-place scenes)",
         "",
         *metric_table(records, units, "pick_place", MOVE_METHODS, ("out", "in", "full")),
@@ -204,7 +227,7 @@ def write_report(ctx: Context, units: list[Unit], records: dict, summary: dict[s
         "",
         "## Table III — ablations (pick-and-place)",
         "",
-        *metric_table(records, units, "pick_place", ("neo", *ABLATIONS), ("out", "in")),
+        *ablation_table(records, units, "pick_place", tuple(ABLATIONS), ("out", "in")),
         "",
         *paper_table(PAPER_TABLE_III, ("Out", "In")),
         "",

@@ -23,6 +23,7 @@ from neoedit.bench.methods import (
     ALL_METHODS,
     ASSEMBLY_METHODS,
     MOVE_METHODS,
+    REMOVAL_ABLATIONS,
     REMOVAL_METHODS,
 )
 from neoedit.bench.profiles import Profile, budget_of
@@ -121,7 +122,7 @@ def scene_kind(name: str) -> str:
 
 def methods_for(kind: str) -> tuple[str, ...]:
     return {
-        "removal": REMOVAL_METHODS,
+        "removal": (*REMOVAL_METHODS, *REMOVAL_ABLATIONS),
         "pick_place": (*MOVE_METHODS, *ABLATIONS),
         "assembly": ASSEMBLY_METHODS,
     }[kind]

@@ -28,9 +28,10 @@ class BenchCommand:
     """Scenes to run, e.g. removal_1 pick_place_2 assembly (default: all 12)."""
     methods: tuple[str, ...] = ()
     """Methods to run where they apply (default: all): pre-edit resample suppress neo
-    nerfiller nerfiller-no-depth seal3d preview oracle and the ablations no-virtual-views
-    no-grid-inpaint no-mask-cond field-distill-only no-shadow no-shadow-follow
-    distil-target no-relight."""
+    nerfiller nerfiller-no-depth seal3d preview oracle; the removal ablations
+    remove-no-shadow remove-no-grid-inpaint inpaint-telea inpaint-ns; the move ablations
+    no-virtual-views no-grid-inpaint no-mask-cond field-distill-only no-shadow
+    no-shadow-follow distil-target no-relight."""
     data: Path | None = None
     """Reuse this NEO-Sim suite (neo sim benchmark --out DATA, same profile) instead of
     simulating the scenes."""
