@@ -277,7 +277,8 @@ CASES = [
     C("grasp-nan-width", "grasp {scene} mug --grasp.min-width-m nan", 2, "--grasp.min-width-m must be a finite"),
     C("grasp-min-width-beyond-opening", "grasp {scene} mug --grasp.min-width-m 1e9", 2, "must be below the gripper's widest opening"),
     C("move-nan-translate", "move {scene} --box mug.json --translate 0.1 0 nan --out v", 2, "--translate must be finite", MUG),
-    C("bench-negative-seed", "bench --out b --seed -1", 2, "--seed must be >= 0"),
+    C("bench-negative-seed", "bench --out b --seed -1", 2, "--seed must be a whole number in [0, 2^32)"),
+    C("bench-seed-past-numpy", "bench --out b --seed 4294967296", 2, "--seed must be a whole number in [0, 2^32), got 4294967296"),
     C("bench-ray-unreachable", "bench --out b --scenes removal_1 --methods pre-edit --ray 127.0.0.1:1", 2, "cannot reach the Ray cluster"),
     C("bench-ray-malformed", "bench --out b --ray nowhere", 2, "--ray must be"),
     # 15. files a user hands a command: bounded, regular, parsed with one message
@@ -334,7 +335,7 @@ CASES = [
     C("verbose-and-quiet", "info {data} --verbose --quiet", 2, "opposite logs"),
     # 19. the fourth probe of issue 42: numbers beyond any sane size, a training that cannot
     # fit or diverges, a resume that would drop options, a value swallowed as the prompt
-    C("train-huge-seed", "train {data} --out s --seed 99999999999999999999 " + TRAIN, 2, "--seed must be at most 2147483647"),
+    C("train-huge-seed", "train {data} --out s --seed 99999999999999999999 " + TRAIN, 2, "--seed must be a whole number in [0, 2^32)"),
     C("train-huge-density-bias", "train {data} --out s --field.density-bias 1e300 " + TRAIN, 2, "--field.density-bias must be at most 1e+12"),
     C("train-rays-beyond-memory", "train {data} --out s --rays-per-batch 100000000 --max-steps 1", 2, "GiB of memory"),
     C("train-diverges", "train {data} --out s --lr 1e9 " + TRAIN, 2, "training diverged "),
@@ -454,3 +455,20 @@ def test_log_of_an_edited_folder_lists_its_lineage_once(golden, tmp_path: Path, 
     assert sum(own[:8] in r for r in rows) == 1 and any(
         scan_id[:8] in r and "train" in r for r in rows
     )
+
+
+def test_every_seed_numpy_accepts_is_accepted() -> None:
+    """Seeds span [0, 2^32), numpy's range (the fourth probe's notes: they stopped at
+    2^31 - 1, so `neo sim benchmark --seed 3000000000`, valid by its own help, was refused)."""
+    import dataclasses
+
+    from neoedit.errors import NeoError
+    from neoedit.training.trainer import TrainConfig
+    from neoedit.utils.options import check_options
+
+    top = 2**32 - 1
+    check_options(TrainConfig(seed=top))
+    np.random.default_rng(top), np.random.RandomState(top)  # both take it
+    for bad in (-1, 2**32):
+        with pytest.raises(NeoError, match=r"--seed must be a whole number in \[0, 2\^32\)"):
+            check_options(dataclasses.replace(TrainConfig(), seed=bad))

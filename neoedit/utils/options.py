@@ -76,7 +76,9 @@ OWN_BOUNDS = frozenset({"max_steps"})
 at least 1, or 0 with ``--resume``), so that -1 and 0 get the same message."""
 
 MAX_INT = 2**31 - 1
-"""Largest whole-number option (steps, counts, seeds): beyond it torch and numpy overflow."""
+"""Largest whole-number option (steps, counts): beyond it torch and numpy overflow."""
+SEED_RANGE = 2**32
+"""Seeds are in [0, 2^32): every seed numpy accepts (torch takes more)."""
 MAX_FLOAT = 1e12
 """Largest size of a real-valued option: far beyond any metre, weight or rate that means
 something, well inside float32 (the field's tensors), where 1e300 overflowed. (A yaw has
@@ -125,6 +127,10 @@ def _check_number(name: str, value: Any, f: dataclasses.Field, where: str) -> No
     default = _default(f)
     if not math.isfinite(value):
         raise NeoError(f"{where} must be a finite number, got {value}")
+    if name == "seed":
+        if not (isinstance(value, int) and 0 <= value < SEED_RANGE):
+            raise NeoError(f"{where} must be a whole number in [0, 2^32), got {value}")
+        return
     if isinstance(value, int) and abs(value) > MAX_INT:
         raise NeoError(f"{where} must be at most {MAX_INT} in size, got {value}")
     if isinstance(value, float) and abs(value) > MAX_FLOAT and name not in ("yaw", "yaw_deg"):
