@@ -103,7 +103,7 @@ def main() -> None:
     for k, action in enumerate(parse_plan(CHAIN), 1):
         t0 = time.perf_counter()
         box = query_scene(scene, action.prompt or "", text).box
-        child = apply_action(scene, action, [box], cfg)
+        child = apply_action(scene, action, lambda _, box=box: [box], cfg)
         rec = child.meta.edits[-1]
         edited += rec.boxes("source_boxes", "target_boxes", "edit_boxes")
         save_scene(root / f"step_{k}", child)

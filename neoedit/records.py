@@ -27,7 +27,7 @@ BOX_KEYS = ("boxes", "edit_boxes", "source_boxes", "shadow_boxes", "target_boxes
 @dataclass
 class EditRecord:
     type: str
-    """'remove' or 'move'."""
+    """'remove', 'move' or 'batch' (several edits as one version, listed in ``parts()``)."""
     prompt: str | None = None
     """The words that named the object (None: boxes given)."""
     method: str | None = None
@@ -91,7 +91,10 @@ class EditRecord:
     @property
     def label(self) -> str:
         """How ``neo log`` and the viewer name the edit: 'remove', 'remove (cut)',
-        'move (neo)', 'move (preview)', 'remove (nerfiller)', ..."""
+        'move (neo)', 'move (preview)', 'remove (nerfiller)', 'batch (remove, move (neo))'..."""
+        if self.type == "batch":
+            parts = ", ".join(p.label for p in self.parts())
+            return f"batch ({parts})" if parts else "batch"
         text = self.type + (f" ({self.method})" if self.method else "")
         if self.type == "remove" and not self.details.get("inpaint") and not self.method:
             text += " (cut)"
@@ -99,7 +102,10 @@ class EditRecord:
 
     def boxes(self, *keys: str) -> list[OrientedBox]:
         """The boxes stored under ``keys`` of :data:`BOX_KEYS` (all of them when none are
-        named), in that order; malformed entries are skipped."""
+        named), in that order (a batch: its edits' boxes, edit by edit); malformed entries
+        are skipped."""
+        if self.type == "batch":
+            return [b for part in self.parts() for b in part.boxes(*keys)]
         found = []
         for key in keys or BOX_KEYS:
             entries = self.details.get(key)
@@ -111,6 +117,11 @@ class EditRecord:
                 except NeoError:
                     continue
         return found
+
+    def parts(self) -> list[EditRecord]:
+        """The records of a batch's edits, in order (empty for any other edit)."""
+        entries = self.details.get("edits") if self.type == "batch" else None
+        return [EditRecord.parse(e) for e in entries] if isinstance(entries, list) else []
 
 
 def own_edit(meta: Any) -> EditRecord | None:

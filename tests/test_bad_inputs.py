@@ -472,3 +472,9 @@ def test_every_seed_numpy_accepts_is_accepted() -> None:
     for bad in (-1, 2**32):
         with pytest.raises(NeoError, match=r"--seed must be a whole number in \[0, 2\^32\)"):
             check_options(dataclasses.replace(TrainConfig(), seed=bad))
+    # COLMAP's seed is a C int: its own narrower range, said as such
+    from neoedit.data.sfm import SfMConfig
+
+    check_options(SfMConfig(seed=2**31 - 1))
+    with pytest.raises(NeoError, match=r"--seed must be a whole number in \[0, 2147483647\]"):
+        check_options(SfMConfig(seed=2**31))

@@ -32,10 +32,12 @@ SUITE_METHODS = tuple(
 """Every method of Tables I and II but the NeRFiller-style baseline without depth: the same
 retraining as with depth (one switch), run and checked by tests/test_nerfiller.py."""
 SUITE_ABLATIONS = ("field-distill-only", "distil-target", "inpaint-telea")
-"""The ablations the small run below carries through the whole bench: the two that take
-another student (the whole field; the moved object distilled, not carried). The others
-flip one option of the same NEO move; each is checked to change exactly that option
-(:func:`test_each_ablation_changes_only_what_it_names`), not re-run end to end here."""
+"""The ablations the small run below carries through the whole bench: the two moves that
+take another student (the whole field; the moved object distilled, not carried) and one
+removal's (it fills the Table I ablations). The others flip one option of the same NEO
+move or removal; each is checked to change exactly that option
+(:func:`test_each_ablation_changes_only_what_it_names` and its removal twin), not re-run
+end to end here."""
 
 
 def test_plan_has_one_unit_per_applicable_method_and_dependencies_first():

@@ -139,7 +139,9 @@ def edit_result(out: Path, child: Scene, report: bool = True) -> dict:
     """What a script wants to know about a new version: where it is, its place in the
     history, its edit's record (boxes, method, seconds, timings; not the full config) and
     its pictures' folder (None with --no-report)."""
-    record = {k: v for k, v in child.meta.edits[-1].to_dict().items() if k != "config"}
+    record = _without_config(child.meta.edits[-1].to_dict())
+    if isinstance(record.get("edits"), list):  # a batch: its edits' records alike
+        record["edits"] = [_without_config(e) for e in record["edits"] if isinstance(e, dict)]
     return {
         "out": str(out),
         "version_id": child.meta.version_id,
@@ -147,6 +149,10 @@ def edit_result(out: Path, child: Scene, report: bool = True) -> dict:
         "edit": record,
         "report": str(out / "report") if report else None,
     }
+
+
+def _without_config(record: dict) -> dict:
+    return {k: v for k, v in record.items() if k != "config"}
 
 
 def write_result(path: Path | None, out: Path, child: Scene, report: bool = True) -> None:

@@ -47,7 +47,9 @@ def _row(name: str, meta: dict[str, Any], parent: str, size: int | None) -> list
     if rec is None:
         what, prompt, motion, secs = "train", "", "", _number(meta.get("train_seconds"))
     else:
-        what, prompt, motion = rec.label, rec.prompt or "box", _motion_text(rec.details)
+        moves = [p.details for p in rec.parts()] or [rec.details]  # a batch: its edits' motions
+        what, prompt = rec.label, rec.prompt or "box"
+        motion = "; ".join(t for t in map(_motion_text, moves) if t)
         secs = _number(rec.seconds)
     mb = "" if not isinstance(size, (int, float)) else f"{size / 1e6:.1f} MB"
     cells = [name, str(meta.get("version_id", "?")), str(parent), what, prompt, motion]

@@ -6,7 +6,7 @@ import dataclasses
 import functools
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 import tyro
@@ -15,10 +15,13 @@ from rich.markup import escape
 
 from neoedit.bench.seal3d import Seal3dConfig
 from neoedit.cli.edit import check_json_output, check_move_method, edit_result, find_boxes
-from neoedit.edit.plan import PlanConfig
+from neoedit.edit.plan import FindBoxes, PlanConfig
 from neoedit.errors import NeoError
 from neoedit.language.localize import QueryConfig
 from neoedit.utils.options import at_least_one
+
+if TYPE_CHECKING:
+    from neoedit.scene import Scene
 
 console = Console()
 
@@ -74,13 +77,14 @@ class PlanCommand:
 
         actions = load_plan(self.plan)  # every step checked before any work
         for a in actions:
-            plan_boxes(a)
+            for step in a.steps:
+                plan_boxes(step)
         if self.out.exists():
             raise NeoError(f"{self.out} already exists: a plan writes a new scene store")
         check_writable_output(self.out, [self.scene, self.plan], "store")
         check_json_output(self.json, self.out, (self.scene, self.plan), self.overwrite)
         scene = load_scene(self.scene, resolve_device(self.device))
-        if scene.meta.language is None and any(a.prompt for a in actions):
+        if scene.meta.language is None and any(s.prompt for a in actions for s in a.steps):
             raise NeoError("this scene has no language field: give the plan's steps a box")
         check_plan(scene, actions)
         cfg = dataclasses.replace(self.edit, preview=self.preview)
@@ -94,8 +98,9 @@ class PlanCommand:
             save_scene(self.out / "step_0", scene)
             for k, action in enumerate(actions, 1):
                 try:
-                    boxes = plan_boxes(action) or find_boxes(scene, action.prompt, None, self.query)
-                    child = apply_action(scene, action, boxes, cfg, move_edit=move_edit)
+                    child = apply_action(
+                        scene, action, self._finder(scene), cfg, move_edit=move_edit
+                    )
                 except NeoError as e:  # NoMatch too
                     self._strip(columns, names)
                     raise NeoError(
@@ -123,6 +128,12 @@ class PlanCommand:
             f"wrote {self.out} ({len(names)} versions); pictures in {self.out / 'plan.png'}",
             markup=False,
         )
+
+    def _finder(self, scene: Scene) -> FindBoxes:
+        """The boxes of a step's objects on ``scene``: its own, or its prompt's query."""
+        from neoedit.edit.plan import plan_boxes
+
+        return lambda a: plan_boxes(a) or find_boxes(scene, a.prompt, None, self.query)
 
     def _strip(self, columns: list[list[list[np.ndarray]]], names: list[str]) -> None:
         """plan.png: one row per view, one column per version."""

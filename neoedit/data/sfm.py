@@ -9,7 +9,7 @@ sets), incremental mapping; the model with the most registered images is kept.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from neoedit.data.capture import LENS_MODELS
@@ -37,7 +37,8 @@ class SfMConfig:
     """Fail when fewer than this share of the photos register in the largest model."""
     video_frames: int = 100
     """Frames sampled evenly from a video."""
-    seed: int = 0
+    seed: int = field(default=0, metadata={"max": 2**31 - 1})
+    """COLMAP's random seed (a C int: at most 2^31 - 1)."""
 
 
 @dataclass

@@ -5,10 +5,12 @@ pipeline, :func:`apply_edit` (:mod:`neoedit.edit.pipeline`)::
 
     no_mug = apply_edit(scene, Remove([mug_box]))
     moved = apply_edit(scene, Move([Motion(mug_box, transform)]))
+    both = apply_edit(scene, Batch([Remove([duck_box]), Move([Motion(mug_box, transform)])]))
     at_once = sketch(scene, Move([Motion(mug_box, transform)], MoveConfig(preview=True)))
 
-The edits: :class:`Remove` (NEO's removal and inpainting, or the instant preview) and
-:class:`Move` (NEO's distillation, or the preview); the baselines are edits of their own
+The edits: :class:`Remove` (NEO's removal and inpainting, or the instant preview),
+:class:`Move` (NEO's distillation, or the preview) and :class:`Batch` (several edits in
+separate places as one version); the baselines are edits of their own
 beside the benchmark: ``neoedit.bench.seal3d.SealMove`` / ``SealRemove`` (Seal-3D-style)
 and ``neoedit.bench.nerfiller.NerfillerRemove`` (NeRFiller-style). Exports load lazily
 (the modules import torch).
@@ -20,6 +22,7 @@ from neoedit.utils.lazy import lazy_exports
 
 _EXPORTS = {
     "apply_edit": "neoedit.edit.pipeline",
+    "Batch": "neoedit.edit.batch",
     "Edit": "neoedit.edit.pipeline",
     "Prepared": "neoedit.edit.pipeline",
     "sketch": "neoedit.edit.pipeline",

@@ -8,13 +8,16 @@ A plan is YAML or JSON, a list of actions (or ``{actions: [...]}``)::
     - {type: move, prompt: lego brick, transform: [[1,0,0,0.1],[0,1,0,0],[0,0,1,0],[0,0,0,1]]}
     - {type: move, prompt: "red mug; duck", motions: [{translate_m: [0.1, 0, 0]},
                                                       {translate_m: [0, 0.1, 0], yaw_deg: 30}]}
+    - {type: batch, edits: [{type: remove, prompt: duck},
+                            {type: move, prompt: red mug, translate_m: [0.1, 0, 0]}]}
 
 Each step queries the *current edited* version for its objects (``;`` separates several,
 moved or removed in one edit), so a step sees where earlier steps put things. A move takes
 one motion for all its objects, or ``motions`` with one per object; ``translate_m`` is in
 world metres, ``yaw_deg`` turns about the vertical axis through the object's box centre,
 ``transform`` is a 4x4 world rigid motion (x' = T x). A step may give ``box`` (a box
-mapping, or a list) instead of a prompt.
+mapping, or a list) instead of a prompt. A ``batch`` step applies its ``edits`` (moves and
+removals in separate places) as one version (:class:`~neoedit.edit.batch.Batch`).
 """
 
 from __future__ import annotations
@@ -28,6 +31,7 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, ValidationError, model_validator
 
+from neoedit.edit.batch import Batch
 from neoedit.edit.checks import check_edit_boxes
 from neoedit.edit.inpaint import Inpainter
 from neoedit.edit.pipeline import Edit, apply_edit
@@ -77,16 +81,22 @@ class MotionSpec(BaseModel):
 
 class Action(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    type: Literal["move", "remove"]
+    type: Literal["move", "remove", "batch"]
     prompt: str | None = None
     box: dict[str, Any] | list[dict[str, Any]] | None = None
     translate_m: tuple[float, float, float] | None = None
     yaw_deg: float = 0.0
     transform: list[list[float]] | None = None
     motions: list[MotionSpec] | None = None
+    edits: list[Action] | None = None
+    """A batch's moves and removals (applied as one version)."""
 
     @model_validator(mode="after")
     def _consistent(self) -> Action:
+        if self.type == "batch":
+            return self._batch()
+        if self.edits is not None:
+            raise ValueError("only a batch step has edits")
         if (self.prompt is None) == (self.box is None):
             raise ValueError("give either prompt or box")
         if isinstance(self.box, list) and not self.box:
@@ -116,15 +126,34 @@ class Action(BaseModel):
             ]
         return self
 
+    def _batch(self) -> Action:
+        own = [self.prompt, self.box, self.translate_m, self.transform, self.motions]
+        if any(v is not None for v in own) or self.yaw_deg != 0.0:
+            raise ValueError("a batch takes no prompt, box or motion of its own: its edits do")
+        if not self.edits:
+            raise ValueError("a batch lists its edits: edits: [{type: remove, ...}, ...]")
+        if any(e.type == "batch" for e in self.edits):
+            raise ValueError("a batch holds moves and removals, not batches")
+        return self
+
+    @property
+    def steps(self) -> list[Action]:
+        """The moves and removals of the step: a batch's edits, or the step itself."""
+        return list(self.edits) if self.type == "batch" and self.edits else [self]
+
     @property
     def objects(self) -> int:
         """How many objects the step edits (one per prompt of ``a; b`` or per box)."""
+        if self.type == "batch":
+            return sum(e.objects for e in self.steps)
         if self.prompt is not None:
             return len(split_prompts(self.prompt))
         return len(self.box) if isinstance(self.box, list) else 1
 
     @property
     def label(self) -> str:
+        if self.type == "batch":
+            return f"batch ({', '.join(e.label for e in self.steps)})"
         return f"{self.type} {self.prompt!r}" if self.prompt else f"{self.type} box"
 
 
@@ -155,19 +184,22 @@ def check_plan(scene: Scene, actions: list[Action]) -> None:
     reach = float(np.linalg.norm(hi - lo))
     for k, action in enumerate(actions, 1):
         try:
-            boxes = plan_boxes(action)
-            if boxes is not None:
-                check_edit_boxes(scene, boxes)
-            for m in action.motions or []:
-                shift = float(np.linalg.norm(m.translate_m or (0.0, 0.0, 0.0)))
-                if m.transform is not None:
-                    shift = float(np.linalg.norm(np.asarray(m.transform)[:3, 3]))
-                if shift > reach:
-                    raise NeoError(
-                        f"a move of {shift:.2f} m leaves the scene box ({reach:.2f} m across)"
-                    )
+            for step in action.steps:
+                _check_step(scene, step, reach)
         except NeoError as e:
             raise NeoError(f"step {k} ({action.label}): {e}") from None
+
+
+def _check_step(scene: Scene, action: Action, reach: float) -> None:
+    boxes = plan_boxes(action)
+    if boxes is not None:
+        check_edit_boxes(scene, boxes)
+    for m in action.motions or []:
+        shift = float(np.linalg.norm(m.translate_m or (0.0, 0.0, 0.0)))
+        if m.transform is not None:
+            shift = float(np.linalg.norm(np.asarray(m.transform)[:3, 3]))
+        if shift > reach:
+            raise NeoError(f"a move of {shift:.2f} m leaves the scene box ({reach:.2f} m across)")
 
 
 def load_plan(path: Path) -> list[Action]:
@@ -186,18 +218,34 @@ class PlanConfig:
 
 MoveEdit = Callable[[list[Motion], str | None], Edit]
 """Makes the edit of a move step from its motions and prompt (another method than NEO's)."""
+FindBoxes = Callable[[Action], list[OrientedBox]]
+"""The boxes of a move or removal's objects (its own ``box``, or its prompt's query)."""
 
 
 def apply_action(
     scene: Scene,
     action: Action,
-    boxes: list[OrientedBox],
+    find: FindBoxes,
     cfg: PlanConfig,
     inpainter: Inpainter | None = None,
     move_edit: MoveEdit | None = None,
 ) -> Scene:
     """One step of a plan on ``scene`` (left unchanged): the new version."""
-    return apply_edit(scene, action_edit(action, boxes, cfg, inpainter, move_edit))
+    return apply_edit(scene, step_edit(action, find, cfg, inpainter, move_edit))
+
+
+def step_edit(
+    action: Action,
+    find: FindBoxes,
+    cfg: PlanConfig,
+    inpainter: Inpainter | None = None,
+    move_edit: MoveEdit | None = None,
+) -> Edit:
+    """The typed edit of one plan step, its objects' boxes from ``find``: a batch of its
+    edits, or the step's own move or removal (:func:`action_edit`)."""
+    if action.type == "batch":
+        return Batch([action_edit(a, find(a), cfg, inpainter, move_edit) for a in action.steps])
+    return action_edit(action, find(action), cfg, inpainter, move_edit)
 
 
 def action_edit(
@@ -207,8 +255,10 @@ def action_edit(
     inpainter: Inpainter | None = None,
     move_edit: MoveEdit | None = None,
 ) -> Edit:
-    """The typed edit of one plan step on the objects in ``boxes``: NEO's, or for a move
-    (not a preview) ``move_edit``'s when given."""
+    """The typed edit of one move or removal of a plan on the objects in ``boxes``: NEO's,
+    or for a move (not a preview) ``move_edit``'s when given."""
+    if action.type == "batch":
+        raise NeoError(f"{action.label}: a batch's edit is made by step_edit")
     if action.type == "remove":
         rcfg = cfg.remove if not cfg.preview else dataclasses.replace(cfg.remove, inpaint=False)
         return Remove(boxes, rcfg, action.prompt, inpainter)

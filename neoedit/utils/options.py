@@ -128,8 +128,10 @@ def _check_number(name: str, value: Any, f: dataclasses.Field, where: str) -> No
     if not math.isfinite(value):
         raise NeoError(f"{where} must be a finite number, got {value}")
     if name == "seed":
-        if not (isinstance(value, int) and 0 <= value < SEED_RANGE):
-            raise NeoError(f"{where} must be a whole number in [0, 2^32), got {value}")
+        top = f.metadata.get("max", SEED_RANGE - 1)  # a library's own narrower range
+        if not (isinstance(value, int) and 0 <= value <= top):
+            span = "[0, 2^32)" if top == SEED_RANGE - 1 else f"[0, {top}]"
+            raise NeoError(f"{where} must be a whole number in {span}, got {value}")
         return
     if isinstance(value, int) and abs(value) > MAX_INT:
         raise NeoError(f"{where} must be at most {MAX_INT} in size, got {value}")
