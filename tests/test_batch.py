@@ -213,3 +213,11 @@ def test_a_stored_batch_record_reads_back_even_when_malformed():
     assert [p.type for p in rec.parts()] == ["remove", "?"] and rec.label == "batch (remove, ?)"
     assert len(rec.boxes()) == 1 and EditRecord.parse(rec.to_dict()).to_dict() == rec.to_dict()
     assert EditRecord.parse({"type": "batch", "edits": "x"}).label == "batch"
+
+
+def test_the_demo_plan_reads_with_its_batch_step():
+    from neoedit.edit.plan import load_plan
+
+    root = Path(__file__).resolve().parents[1]
+    labels = [a.label for a in load_plan(root / "examples" / "demo_plan.yaml")]
+    assert labels == ["move 'duck'", "batch (move 'mug', remove 'soccer ball')", "remove 'duck'"]
