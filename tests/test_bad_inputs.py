@@ -286,6 +286,14 @@ CASES = [
     C("plan-folder", "plan {scene} {ws} --out st", 2, "the plan must be a file (a folder)"),
     C("plan-binary", "plan {scene} p.yaml --out st", 2, "not UTF-8 text", write("p.yaml", b"\xff\xfe\x00")),
     C("plan-step-2-yaw", "plan {scene} p.json --out st", 2, "step 2: yaw_deg is in degrees", write("p.json", [{"type": "remove", "box": BOX_MUG}, {"type": "move", "box": BOX_MUG, "yaw_deg": 720}])),
+    # the fifth probe (batch plans): nested preview switches, a batch's boxes that overlap and
+    # a given box moved out of the scene, refused before the store is written
+    C("move-nested-preview", "move {scene} --box mug.json --translate 0.02 0 0 --out v --edit.preview", 2, "--edit.preview is set by --preview: write --preview", MUG),
+    C("plan-nested-preview", "plan {scene} p.json --out st --edit.move.preview", 2, "--edit.move.preview is set by --preview", write("p.json", [{"type": "move", "box": BOX_MUG, "translate_m": [0.02, 0, 0]}])),
+    C("plan-edit-preview", "plan {scene} p.json --out st --edit.preview", 2, "--edit.preview is set by --preview", write("p.json", [{"type": "remove", "box": BOX_MUG}])),
+    C("plan-batch-overlap", "plan {scene} p.json --out st --preview", 2, "step 1 (batch (remove box, move box)): edits 1 (remove) and 2 (move) of the batch touch the same place", write("p.json", [{"type": "batch", "edits": [{"type": "remove", "box": BOX_MUG}, {"type": "move", "box": BOX_MUG, "translate_m": [0.02, 0, 0]}]}])),
+    C("plan-batch-move-out", "plan {scene} p.json --out st --preview", 2, "leaves the scene box", write("p.json", [{"type": "batch", "edits": [{"type": "move", "box": BOX_MUG, "translate_m": [0, 0, -0.5]}]}])),
+    C("train-too-short-for-language", "train {data} --out s " + TRAIN.replace("--skip-language", ""), 0, "language", None, ("s/scene.json",)),
     C("plan-seal3d-preview", "plan {scene} p.json --out st --method seal3d --preview", 2, "do not combine", write("p.json", [{"type": "move", "box": BOX_MUG, "translate_m": [0.02, 0, 0]}])),
     C("plan-seal3d-neo-option", "plan {scene} p.json --out st --method seal3d --edit.move.distill.rays 8", 2, "--edit.move.* options set NEO's move", write("p.json", [{"type": "move", "box": BOX_MUG, "translate_m": [0.02, 0, 0]}])),
     C("plan-bad-move-option", "plan {scene} p.json --out st --edit.move.distill.rays 0", 2, "--edit.move.distill.rays must be", write("p.json", [{"type": "remove", "box": BOX_MUG}, {"type": "move", "box": BOX_MUG, "translate_m": [0.02, 0, 0]}])),

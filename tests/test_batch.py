@@ -221,3 +221,20 @@ def test_the_demo_plan_reads_with_its_batch_step():
     root = Path(__file__).resolve().parents[1]
     labels = [a.label for a in load_plan(root / "examples" / "demo_plan.yaml")]
     assert labels == ["move 'duck'", "batch (move 'mug', remove 'soccer ball')", "remove 'duck'"]
+
+
+def test_a_plan_whose_first_step_fails_leaves_nothing(move_scene: Path, tmp_path: Path, capsys):
+    """The store would hold only a copy of the input: the plan removes what it made (a rerun
+    to the same --out works); a later step's failure keeps the versions before it."""
+    from test_move import SPARSE_ARGS
+
+    from neoedit.cli import main
+
+    steps = [{"type": "move", "prompt": "purple elephant", "translate_m": [0.05, 0.0, 0.0]}]
+    (tmp_path / "plan.json").write_text(json.dumps(steps))
+    out = tmp_path / "store"
+    argv = ["plan", str(move_scene), str(tmp_path / "plan.json"), "--out", str(out), "--preview"]
+    assert main([*argv, *SPARSE_ARGS]) == 2
+    err = " ".join(capsys.readouterr().err.split())
+    assert "step 1 (move 'purple elephant')" in err and "nothing was written" in err
+    assert not out.exists()

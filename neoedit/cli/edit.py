@@ -321,6 +321,8 @@ def check_move_method(
     """Refuse, before any work, settings the chosen method would ignore or cannot run with:
     NEO's options (``where``.*) with the Seal-3D-style baseline, --seal3d.* with NEO, a
     preview of the baseline."""
+    if neo.preview:  # the nested field is the library's; the command's switch is --preview
+        raise NeoError(f"{where}.preview is set by --preview: write --preview")
     if method == "seal3d":
         if preview:
             raise NeoError("--preview and --method seal3d do not combine: a preview trains nothing")

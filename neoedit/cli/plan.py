@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Literal
@@ -66,6 +67,8 @@ class PlanCommand:
     def run(self) -> None:
         self.query.check()  # before any loading or training
         check_move_method(self.method, self.preview, self.edit.move, self.seal3d, "--edit.move")
+        if self.edit.preview:
+            raise NeoError("--edit.preview is set by --preview: write --preview")
         self.edit.remove.check("--edit.remove")
         from neoedit.edit.plan import apply_action, check_plan, load_plan, plan_boxes
         from neoedit.edit.remove import write_report
@@ -94,6 +97,7 @@ class PlanCommand:
         columns = [render_versions([scene], views)]
         names = ["step_0"]
         steps = []
+        failed: NeoError | None = None
         with store.lock():
             save_scene(self.out / "step_0", scene)
             for k, action in enumerate(actions, 1):
@@ -102,11 +106,8 @@ class PlanCommand:
                         scene, action, self._finder(scene), cfg, move_edit=move_edit
                     )
                 except NeoError as e:  # NoMatch too
-                    self._strip(columns, names)
-                    raise NeoError(
-                        f"step {k} ({action.label}): {e}; the plan stopped, versions "
-                        f"step_0 .. step_{k - 1} are in {self.out}"
-                    ) from None
+                    failed = NeoError(f"step {k} ({action.label}): {e}; the plan stopped")
+                    break
                 out = self.out / f"step_{k}"
                 report = functools.partial(_report, write_report, scene, child)
                 save_scene(out, child, extras=report if self.report else None)
@@ -120,6 +121,8 @@ class PlanCommand:
                 columns.append(render_versions([child], views))
                 names.append(f"step_{k}")
                 scene = child
+        if failed is not None:
+            self._stop(failed, columns, names)
         self._strip(columns, names)
         if self.json is not None:
             result = {"out": str(self.out), "plan_png": str(self.out / "plan.png"), "steps": steps}
@@ -128,6 +131,15 @@ class PlanCommand:
             f"wrote {self.out} ({len(names)} versions); pictures in {self.out / 'plan.png'}",
             markup=False,
         )
+
+    def _stop(self, failed: NeoError, columns: list, names: list[str]) -> None:
+        """A step failed: the versions before it stay (with plan.png); when it was the first,
+        the store holds only a copy of the input, and is removed (this command made it)."""
+        if len(names) == 1:
+            shutil.rmtree(self.out, ignore_errors=True)
+            raise NeoError(f"{failed}; nothing was written") from None
+        self._strip(columns, names)
+        raise NeoError(f"{failed}, versions step_0 .. {names[-1]} are in {self.out}") from None
 
     def _finder(self, scene: Scene) -> FindBoxes:
         """The boxes of a step's objects on ``scene``: its own, or its prompt's query."""

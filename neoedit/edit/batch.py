@@ -53,7 +53,10 @@ class Batch:
             )
         record = EditRecord(
             "batch",
-            "; ".join(p.record.prompt for p in parts if p.record.prompt) or None,
+            # the parts' prompts, "box" for one given by boxes (None when none has a prompt)
+            "; ".join(p.record.prompt or "box" for p in parts)
+            if any(p.record.prompt for p in parts)
+            else None,
             details={"edits": [_entry(p.record) for p in parts]},
         )
 
@@ -64,8 +67,10 @@ class Batch:
                     part = edit.prepare(_so_far(child, parent))
                 # each edit runs with its own record last in the history (what it adds to
                 # it, e.g. the light a move read, stays with it), then the batch's is last
-                ids = {"parent": child.meta.parent, "version": child.meta.version_id}
-                child.meta.edits.append(dataclasses.replace(part.record, **ids))
+                mine = dataclasses.replace(
+                    part.record, parent=child.meta.parent, version=child.meta.version_id
+                )
+                child.meta.edits.append(mine)
                 stages = Timings()
                 try:
                     part.run(child, stages)
@@ -113,7 +118,7 @@ def check_separate(records: list[EditRecord]) -> None:
     for (i, a), (j, b) in itertools.combinations(enumerate(regions, 1), 2):
         if any(box_iou_3d(x, y) > OVERLAP_IOU for x in a for y in b):
             raise NeoError(
-                f"edits {i} ({records[i - 1].label}) and {j} ({records[j - 1].label}) of the "
+                f"edits {i} ({records[i - 1].type}) and {j} ({records[j - 1].type}) of the "
                 "batch touch the same place (their boxes, margins or shadows overlap): apply "
                 "them one after another, as the steps of a plan"
             )

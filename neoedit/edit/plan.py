@@ -31,15 +31,17 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, ValidationError, model_validator
 
-from neoedit.edit.batch import Batch
+from neoedit.edit.batch import Batch, check_separate
 from neoedit.edit.checks import check_edit_boxes
 from neoedit.edit.inpaint import Inpainter
+from neoedit.edit.motion import check_motions
 from neoedit.edit.pipeline import Edit, apply_edit
 from neoedit.edit.relocate import Motion, Move, MoveConfig
 from neoedit.edit.remove import Remove, RemoveConfig
 from neoedit.errors import NeoError
 from neoedit.geometry import OrientedBox, is_rigid, motion_about
 from neoedit.language.relevancy import split_prompts
+from neoedit.records import EditRecord
 from neoedit.scene import Scene
 from neoedit.utils.userfile import read_data_file
 
@@ -178,28 +180,39 @@ def parse_plan(raw: Any, where: str = "plan") -> list[Action]:
 
 def check_plan(scene: Scene, actions: list[Action]) -> None:
     """What can be checked against the starting scene before any step runs: boxes a step
-    gives inside the scene box, translations that stay within its size. A failure names the
-    step."""
+    gives inside the scene box, and where they move to; translations that stay within its
+    size; a batch's given boxes and targets apart. A failure names the step."""
     lo, hi = (np.asarray(v, dtype=np.float64) for v in scene.meta.aabb_m)
     reach = float(np.linalg.norm(hi - lo))
     for k, action in enumerate(actions, 1):
         try:
-            for step in action.steps:
-                _check_step(scene, step, reach)
+            regions = [_check_step(scene, step, reach) for step in action.steps]
+            if action.type == "batch":
+                check_separate([r for r in regions if r is not None])
         except NeoError as e:
             raise NeoError(f"step {k} ({action.label}): {e}") from None
 
 
-def _check_step(scene: Scene, action: Action, reach: float) -> None:
-    boxes = plan_boxes(action)
-    if boxes is not None:
-        check_edit_boxes(scene, boxes)
+def _check_step(scene: Scene, action: Action, reach: float) -> EditRecord | None:
+    """Checks of one move or removal; the record of its given boxes and their targets (None
+    for a prompt: its boxes are found when the step runs)."""
     for m in action.motions or []:
         shift = float(np.linalg.norm(m.translate_m or (0.0, 0.0, 0.0)))
         if m.transform is not None:
             shift = float(np.linalg.norm(np.asarray(m.transform)[:3, 3]))
         if shift > reach:
             raise NeoError(f"a move of {shift:.2f} m leaves the scene box ({reach:.2f} m across)")
+    boxes = plan_boxes(action)
+    if boxes is None:
+        return None
+    check_edit_boxes(scene, boxes)
+    targets: list[OrientedBox] = []
+    if action.type == "move":
+        motions = _motions(action, boxes)
+        check_motions(scene, motions)
+        targets = [m.box.transformed(m.transform) for m in motions]
+    given = {"boxes": [b.to_dict() for b in boxes], "target_boxes": [b.to_dict() for b in targets]}
+    return EditRecord(action.type, details=given)
 
 
 def load_plan(path: Path) -> list[Action]:
@@ -262,6 +275,15 @@ def action_edit(
     if action.type == "remove":
         rcfg = cfg.remove if not cfg.preview else dataclasses.replace(cfg.remove, inpaint=False)
         return Remove(boxes, rcfg, action.prompt, inpainter)
+    motions = _motions(action, boxes)
+    if move_edit is not None and not cfg.preview:
+        return move_edit(motions, action.prompt)
+    mcfg = dataclasses.replace(cfg.move, preview=cfg.preview)
+    return Move(motions, mcfg, action.prompt, inpainter)
+
+
+def _motions(action: Action, boxes: list[OrientedBox]) -> list[Motion]:
+    """A move step's motion of each of its objects (one for all, or one per object)."""
     specs = action.motions or []
     if len(specs) not in (1, len(boxes)):
         raise NeoError(
@@ -269,11 +291,7 @@ def action_edit(
             "or one per object)"
         )
     specs = specs * len(boxes) if len(specs) == 1 else specs
-    motions = [Motion(b, s.matrix(b)) for b, s in zip(boxes, specs, strict=True)]
-    if move_edit is not None and not cfg.preview:
-        return move_edit(motions, action.prompt)
-    mcfg = dataclasses.replace(cfg.move, preview=cfg.preview)
-    return Move(motions, mcfg, action.prompt, inpainter)
+    return [Motion(b, s.matrix(b)) for b, s in zip(boxes, specs, strict=True)]
 
 
 def plan_boxes(action: Action) -> list[OrientedBox] | None:

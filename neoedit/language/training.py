@@ -179,7 +179,8 @@ def fit_language(
 
 def train_language(scene: Scene, data: SceneData, cfg: LanguageTrainConfig) -> Scene:
     """Train (or retrain) the language field of ``scene`` in place; returns the scene (left
-    as it was when the teacher is 'auto', the data has no labels and no support plane)."""
+    as it was when the teacher is 'auto', the data has no labels and no support plane, or
+    when the field renders nothing opaque yet: a warning says so)."""
     kind = resolve_teacher(cfg, data)
     if kind is None:
         raise NeoError(f"{data.root}: no language teacher for this data")
@@ -197,7 +198,13 @@ def train_language(scene: Scene, data: SceneData, cfg: LanguageTrainConfig) -> S
     )
     hit = acc >= cfg.min_accumulation
     if int(hit.sum()) < 100:
-        raise NeoError("the radiance field renders (almost) nothing opaque: train it first")
+        # the field is written and usable: a scene without language, not a failed training
+        Console(stderr=True).print(
+            "[yellow]the radiance field renders (almost) nothing opaque yet: the scene has no "
+            "language field (train longer; `neo train DATA --out S --resume --max-steps N` "
+            "trains it with the language)[/]"
+        )
+        return scene
     pos, v, u, points = pos[hit], v[hit], u[hit], points[hit]
     try:
         targets, valid = teacher.targets_at(points, pos, v, u)
