@@ -294,6 +294,8 @@ CASES = [
     C("plan-batch-overlap", "plan {scene} p.json --out st --preview", 2, "step 1 (batch (remove box, move box)): edits 1 (remove) and 2 (move) of the batch touch the same place", write("p.json", [{"type": "batch", "edits": [{"type": "remove", "box": BOX_MUG}, {"type": "move", "box": BOX_MUG, "translate_m": [0.02, 0, 0]}]}])),
     C("plan-batch-move-out", "plan {scene} p.json --out st --preview", 2, "leaves the scene box", write("p.json", [{"type": "batch", "edits": [{"type": "move", "box": BOX_MUG, "translate_m": [0, 0, -0.5]}]}])),
     C("train-too-short-for-language", "train {data} --out s " + TRAIN.replace("--skip-language", ""), 0, "language", None, ("s/scene.json",)),
+    C("train-seed-not-whole", "train {data} --out s --seed 1e20", 2, "--seed takes a whole number"),
+    C("train-lr-not-a-number", "train {data} --out s --lr abc", 2, "--lr takes a number"),
     C("plan-seal3d-preview", "plan {scene} p.json --out st --method seal3d --preview", 2, "do not combine", write("p.json", [{"type": "move", "box": BOX_MUG, "translate_m": [0.02, 0, 0]}])),
     C("plan-seal3d-neo-option", "plan {scene} p.json --out st --method seal3d --edit.move.distill.rays 8", 2, "--edit.move.* options set NEO's move", write("p.json", [{"type": "move", "box": BOX_MUG, "translate_m": [0.02, 0, 0]}])),
     C("plan-bad-move-option", "plan {scene} p.json --out st --edit.move.distill.rays 0", 2, "--edit.move.distill.rays must be", write("p.json", [{"type": "remove", "box": BOX_MUG}, {"type": "move", "box": BOX_MUG, "translate_m": [0.02, 0, 0]}])),

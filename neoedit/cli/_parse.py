@@ -102,8 +102,12 @@ def condense(text: str, verb: str = "neo", options: Sequence[str] = ()) -> str:
             help_hint = found.group(1)
     if options:
         suggestions = _ranked(sections[0], suggestions, options)
-    missing = _absent(sections[0], suggestions, verb)
-    if not suggestions and _BOOL_WORD.search(" ".join(sections[0])):
+    bad_value = _BAD_VALUE.search(" ".join(sections[0]))
+    missing = None if bad_value else _absent(sections[0], suggestions, verb)
+    if bad_value:  # the option exists: its value is what is wrong, no other name helps
+        if bad_value.group(2):
+            lines.append(f"  {bad_value.group(1)} takes {_KINDS[bad_value.group(2)]}")
+    elif not suggestions and _BOOL_WORD.search(" ".join(sections[0])):
         lines.append(
             "  an on/off option takes no True/False after it: write --NAME to turn it on, "
             "--no-NAME to turn it off"
@@ -116,6 +120,16 @@ def condense(text: str, verb: str = "neo", options: Sequence[str] = ()) -> str:
         help_hint = f"{verb} --help"
     lines.append(f"  every option: {help_hint}")
     return "\n".join(lines)
+
+
+_BAD_VALUE = re.compile(
+    r"Error parsing (--[\w.-]+):(?: (invalid literal for int|could not convert string to float))?"
+)
+"""tyro's message for a value its option's type cannot read (group 2: which type)."""
+_KINDS = {
+    "invalid literal for int": "a whole number (e.g. 3; not 2.5 or 1e20)",
+    "could not convert string to float": "a number (e.g. 0.01 or 1e-3)",
+}
 
 
 def _ranked(first: list[str], suggestions: list[str], options: Sequence[str]) -> list[str]:
