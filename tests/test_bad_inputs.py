@@ -296,6 +296,8 @@ CASES = [
     C("train-too-short-for-language", "train {data} --out s " + TRAIN.replace("--skip-language", ""), 0, "language", None, ("s/scene.json",)),
     C("train-seed-not-whole", "train {data} --out s --seed 1e20", 2, "--seed takes a whole number"),
     C("train-lr-not-a-number", "train {data} --out s --lr abc", 2, "--lr takes a number"),
+    C("plan-duplicate-key", "plan {scene} p.yaml --out st", 2, "line 1, column 53: the key 'edits' is given twice", write("p.yaml", "- {type: batch, edits: [{type: remove, prompt: a}], edits: []}\n")),
+    C("remove-box-duplicate-key", "remove {scene} --box b.json --out v", 2, "the key 'center' is given twice", write("b.json", '{"center": [0, 0, 0.05], "size": [0.1, 0.1, 0.1], "center": [0.1, 0, 0.05]}')),
     C("plan-seal3d-preview", "plan {scene} p.json --out st --method seal3d --preview", 2, "do not combine", write("p.json", [{"type": "move", "box": BOX_MUG, "translate_m": [0.02, 0, 0]}])),
     C("plan-seal3d-neo-option", "plan {scene} p.json --out st --method seal3d --edit.move.distill.rays 8", 2, "--edit.move.* options set NEO's move", write("p.json", [{"type": "move", "box": BOX_MUG, "translate_m": [0.02, 0, 0]}])),
     C("plan-bad-move-option", "plan {scene} p.json --out st --edit.move.distill.rays 0", 2, "--edit.move.distill.rays must be", write("p.json", [{"type": "remove", "box": BOX_MUG}, {"type": "move", "box": BOX_MUG, "translate_m": [0.02, 0, 0]}])),

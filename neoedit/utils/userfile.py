@@ -55,11 +55,44 @@ def read_data_file(path: Path, what: str, yaml_ok: bool = False) -> Any:
     text = read_text_file(path, what)
     as_yaml = yaml_ok and path.suffix.lower() != ".json"
     try:
-        return yaml.safe_load(text) if as_yaml else json.loads(text)
+        if as_yaml:
+            return yaml.load(text, Loader=_UniqueKeyLoader)  # noqa: S506 (a SafeLoader)
+        return json.loads(text, object_pairs_hook=_unique_keys)
     except (ValueError, yaml.YAMLError, RecursionError) as e:
         raise NeoError(
             f"{path}: the {what} is not valid {'YAML' if as_yaml else 'JSON'}: {_one_line(e)}"
         ) from None
+
+
+def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    """A JSON object whose keys are all different (a key given twice would silently keep
+    only its last value)."""
+    out: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in out:
+            raise ValueError(f"the key {key!r} is given twice in one object")
+        out[key] = value
+    return out
+
+
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """YAML's safe loader, refusing a mapping that gives one key twice."""
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict:
+        seen = set()
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=deep)
+            if not isinstance(key, (str, int, float, bool)):
+                continue
+            if key in seen:
+                raise yaml.constructor.ConstructorError(
+                    None,
+                    None,
+                    f"the key {key!r} is given twice in one mapping",
+                    key_node.start_mark,
+                )
+            seen.add(key)
+        return super().construct_mapping(node, deep=deep)
 
 
 def _one_line(error: BaseException) -> str:
