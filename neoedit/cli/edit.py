@@ -5,7 +5,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import json
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -63,18 +63,15 @@ class RemoveCommand:
         self.query.check()  # before any loading or training
         self.edit.check()
         from neoedit.edit.pipeline import apply_edit
-        from neoedit.edit.remove import Remove, write_report
+        from neoedit.edit.remove import Remove
         from neoedit.scene import save_scene
 
         with edit_session(self, (self.scene, self.box, self.masks)) as (scene, boxes):
             removal = Remove(boxes, self.edit, self.prompt)
             child = apply_edit(scene, removal)
-            report = (
-                (lambda d: write_report(d / "report", scene, child, removal.strips))
-                if self.report
-                else None
+            save_scene(
+                self.out, child, extras=report_writer(self.report, scene, child, removal.strips)
             )
-            save_scene(self.out, child, extras=report)
         write_result(self.json, self.out, child, self.report)
         rec = child.meta.edits[-1]
         console.print(
@@ -166,6 +163,16 @@ def pictures_note(out: Path, report: bool) -> str:
     return f"; pictures in {out / 'report'}" if report else ""
 
 
+def report_writer(
+    on: bool, parent: Scene, child: Scene, strips: list | None = None
+) -> Callable[[Path], None] | None:
+    """What writes an edit's pictures into its new version's folder (FOLDER/report/:
+    before/after and the virtual views' ``strips``), or None with --no-report."""
+    from neoedit.edit.remove import write_report
+
+    return (lambda d: write_report(d / "report", parent, child, strips or [])) if on else None
+
+
 def find_boxes(
     scene: Scene,
     prompt: str | None,
@@ -249,7 +256,6 @@ class MoveCommand:
         check_move_method(self.method, self.preview, self.edit, self.seal3d, "--edit")
         from neoedit.edit.pipeline import Edit, apply_edit
         from neoedit.edit.relocate import Motion, Move
-        from neoedit.edit.remove import write_report
         from neoedit.scene import save_scene
 
         transform = self.motion()
@@ -264,10 +270,7 @@ class MoveCommand:
                 )
             )
             child = apply_edit(scene, edit)
-            report = (
-                (lambda d: write_report(d / "report", scene, child, [])) if self.report else None
-            )
-            save_scene(self.out, child, extras=report)
+            save_scene(self.out, child, extras=report_writer(self.report, scene, child))
         write_result(self.json, self.out, child, self.report)
         rec = child.meta.edits[-1]
         console.print(

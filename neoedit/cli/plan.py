@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import functools
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
@@ -15,7 +14,13 @@ from rich.console import Console
 from rich.markup import escape
 
 from neoedit.bench.seal3d import Seal3dConfig
-from neoedit.cli.edit import check_json_output, check_move_method, edit_result, find_boxes
+from neoedit.cli.edit import (
+    check_json_output,
+    check_move_method,
+    edit_result,
+    find_boxes,
+    report_writer,
+)
 from neoedit.edit.plan import FindBoxes, PlanConfig
 from neoedit.errors import NeoError
 from neoedit.language.localize import QueryConfig
@@ -71,7 +76,6 @@ class PlanCommand:
             raise NeoError("--edit.preview is set by --preview: write --preview")
         self.edit.remove.check("--edit.remove")
         from neoedit.edit.plan import apply_action, check_plan, load_plan, plan_boxes
-        from neoedit.edit.remove import write_report
         from neoedit.scene import load_scene, save_scene
         from neoedit.storage import SceneStore
         from neoedit.utils.device import resolve_device
@@ -109,8 +113,7 @@ class PlanCommand:
                     failed = NeoError(f"step {k} ({action.label}): {e}; the plan stopped")
                     break
                 out = self.out / f"step_{k}"
-                report = functools.partial(_report, write_report, scene, child)
-                save_scene(out, child, extras=report if self.report else None)
+                save_scene(out, child, extras=report_writer(self.report, scene, child))
                 rec = child.meta.edits[-1]
                 console.print(
                     f"step {k}: {escape(str(action.label))} -> {escape(str(out))} in {rec.seconds or 0:.1f} s"
@@ -158,7 +161,3 @@ class PlanCommand:
                 tiles.append(col[v][0])
                 labels.append(name)
         write_png(self.out / "plan.png", tile_images(tiles, cols=len(names), labels=labels))
-
-
-def _report(write_report, parent, child, folder: Path) -> None:
-    write_report(folder / "report", parent, child, [])
