@@ -6,10 +6,12 @@
     s2 = s.remove("red mug")                          # a new version; s is unchanged
     s3 = s2.move("duck", translate=(0.1, 0.0, 0.0))
     rgb = s3.render()                                 # (H, W, 3) uint8, a scan camera
-    neo.save(s3, "outputs/demo/moved")
+    s4 = s3.batch().remove("ball").move("mug", translate=(0.02, 0, 0)).apply()  # one version
+    neo.save(s4, "outputs/demo/moved")
 
 Each call is the library function the ``neo`` verbs use (:func:`neoedit.edit.remove.remove`,
-:func:`neoedit.edit.relocate.move`, :func:`neoedit.language.localize.find_objects`), with
+:func:`neoedit.edit.relocate.move`, :class:`neoedit.edit.batch.Batch`,
+:func:`neoedit.language.localize.find_objects`), with
 their configs as keyword arguments; :attr:`EditableScene.scene` is the underlying
 :class:`neoedit.scene.Scene` for everything else.
 """
@@ -17,7 +19,7 @@ their configs as keyword arguments; :attr:`EditableScene.scene` is the underlyin
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -57,12 +59,7 @@ class EditableScene:
 
     def remove(self, target: Target, cfg=None, query=None) -> EditableScene:
         """The scene without ``target``, what it hid inpainted (``cfg``: a RemoveConfig)."""
-        from neoedit.edit.pipeline import apply_edit
-        from neoedit.edit.remove import Remove, RemoveConfig
-
-        boxes, prompt = self._boxes(target, query)
-        child = apply_edit(self.scene, Remove(boxes, cfg or RemoveConfig(), prompt))
-        return EditableScene(child, self.source)
+        return self._apply(self._removal(target, cfg, query))
 
     def move(
         self,
@@ -71,17 +68,50 @@ class EditableScene:
         yaw_deg: float = 0.0,
         cfg=None,
         query=None,
+        preview: bool = False,
     ) -> EditableScene:
         """The scene with ``target`` moved by ``translate`` (world metres) and turned by
-        ``yaw_deg`` about the vertical through its box centre (``cfg``: a MoveConfig)."""
+        ``yaw_deg`` about the vertical through its box centre (``cfg``: a MoveConfig;
+        ``preview``: composed at render time, nothing trained, at once)."""
+        return self._apply(self._motion(target, translate, yaw_deg, cfg, query, preview))
+
+    def batch(self) -> BatchBuilder:
+        """Several edits as one new version (one robot action that changes several
+        objects), in separate places::
+
+            s2 = s.batch().remove("soccer ball").move("mug", translate=(0.02, 0, 0)).apply()
+
+        Each object is found on this version; the edits run in order on the new one, and
+        its history gets one entry that lists them (:class:`neoedit.edit.batch.Batch`)."""
+        return BatchBuilder(self)
+
+    def _apply(self, edit) -> EditableScene:
         from neoedit.edit.pipeline import apply_edit
-        from neoedit.edit.relocate import Motion, Move, MoveConfig
+
+        return EditableScene(apply_edit(self.scene, edit), self.source)
+
+    def _removal(self, target: Target, cfg, query):
+        from neoedit.edit.remove import Remove, RemoveConfig
+
+        boxes, prompt = self._boxes(target, query)
+        return Remove(boxes, cfg or RemoveConfig(), prompt)
+
+    def _motion(
+        self,
+        target: Target,
+        translate: Sequence[float],
+        yaw_deg: float,
+        cfg,
+        query,
+        preview: bool,
+    ):
+        from neoedit.edit.relocate import Motion, Move, MoveConfig, PreviewMove
 
         boxes, prompt = self._boxes(target, query)
         shift = np.asarray(translate, dtype=np.float64).reshape(3)
         motions = [Motion(b, motion_about(np.asarray(b.center_m), shift, yaw_deg)) for b in boxes]
-        child = apply_edit(self.scene, Move(motions, cfg or MoveConfig(), prompt))
-        return EditableScene(child, self.source)
+        kind = PreviewMove if preview else Move
+        return kind(motions, cfg or MoveConfig(), prompt)
 
     def render(self, cameras: Cameras | None = None, index: int = 0) -> np.ndarray:
         """(H, W, 3) uint8 RGB of camera ``index`` of ``cameras`` (default: the scan's)."""
@@ -97,6 +127,38 @@ class EditableScene:
     def cameras(self) -> Cameras:
         """The cameras of the scan the scene was trained on."""
         return self.scene.scan_cameras()[0]
+
+
+@dataclass
+class BatchBuilder:
+    """The edits of one batch, collected by :meth:`EditableScene.batch` (same arguments as
+    the scene's own ``remove`` / ``move``) and applied together by :meth:`apply`."""
+
+    scene: EditableScene
+    edits: list = field(default_factory=list)
+
+    def remove(self, target: Target, cfg=None, query=None) -> BatchBuilder:
+        self.edits.append(self.scene._removal(target, cfg, query))
+        return self
+
+    def move(
+        self,
+        target: Target,
+        translate: Sequence[float] = (0.0, 0.0, 0.0),
+        yaw_deg: float = 0.0,
+        cfg=None,
+        query=None,
+        preview: bool = False,
+    ) -> BatchBuilder:
+        self.edits.append(self.scene._motion(target, translate, yaw_deg, cfg, query, preview))
+        return self
+
+    def apply(self) -> EditableScene:
+        """The new version with every collected edit (refused before any work when two
+        touch the same place, or when some train and others are instant previews)."""
+        from neoedit.edit.batch import Batch
+
+        return self.scene._apply(Batch(list(self.edits)))
 
 
 def load(path: str | Path, device: str = "auto") -> EditableScene:

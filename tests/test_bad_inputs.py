@@ -288,8 +288,8 @@ CASES = [
     C("plan-step-2-yaw", "plan {scene} p.json --out st", 2, "step 2: yaw_deg is in degrees", write("p.json", [{"type": "remove", "box": BOX_MUG}, {"type": "move", "box": BOX_MUG, "yaw_deg": 720}])),
     # the fifth probe (batch plans): nested preview switches, a batch's boxes that overlap and
     # a given box moved out of the scene, refused before the store is written
-    C("move-nested-preview", "move {scene} --box mug.json --translate 0.02 0 0 --out v --edit.preview", 2, "--edit.preview is set by --preview: write --preview", MUG),
-    C("plan-nested-preview", "plan {scene} p.json --out st --edit.move.preview", 2, "--edit.move.preview is set by --preview", write("p.json", [{"type": "move", "box": BOX_MUG, "translate_m": [0.02, 0, 0]}])),
+    C("move-nested-preview", "move {scene} --box mug.json --translate 0.02 0 0 --out v --edit.preview", 2, "neo move has no --edit.preview", MUG),
+    C("plan-nested-preview", "plan {scene} p.json --out st --edit.move.preview", 2, "Unrecognized options: --edit.move.preview", write("p.json", [{"type": "move", "box": BOX_MUG, "translate_m": [0.02, 0, 0]}])),
     C("plan-edit-preview", "plan {scene} p.json --out st --edit.preview", 2, "--edit.preview is set by --preview", write("p.json", [{"type": "remove", "box": BOX_MUG}])),
     C("plan-batch-overlap", "plan {scene} p.json --out st --preview", 2, "step 1 (batch (remove box, move box)): edits 1 (remove) and 2 (move) of the batch touch the same place", write("p.json", [{"type": "batch", "edits": [{"type": "remove", "box": BOX_MUG}, {"type": "move", "box": BOX_MUG, "translate_m": [0.02, 0, 0]}]}])),
     C("plan-batch-move-out", "plan {scene} p.json --out st --preview", 2, "leaves the scene box", write("p.json", [{"type": "batch", "edits": [{"type": "move", "box": BOX_MUG, "translate_m": [0, 0, -0.5]}]}])),
@@ -316,10 +316,10 @@ CASES = [
     C("render-cameras-under-depth", "render {scene} --cameras cams.json --out r", 2, "would overwrite the render's own depth", cameras_frame(file_path="depth/x.png")),
     # 17. the second probe of issue 42: options under omitted prefixes named as typed, an edit
     # that would not train refused, one object moved once, a view too big for memory
-    C("remove-zero-steps", "remove {scene} --box mug.json --out v --steps 0", 2, "--steps must be at least 1", MUG),
-    C("remove-zero-rounds", "remove {scene} --box mug.json --out v --rounds 0", 2, "--rounds must be at least 1", MUG),
-    C("remove-zero-turns", "remove {scene} --box mug.json --out v --turns 0", 2, "--turns must be at least 1", MUG),
-    C("remove-negative-reach", "remove {scene} --box mug.json --out v --reach -1", 2, "--reach must be", MUG),
+    C("remove-zero-steps", "remove {scene} --box mug.json --out v --refine.steps 0", 2, "--refine.steps must be at least 1", MUG),
+    C("remove-zero-rounds", "remove {scene} --box mug.json --out v --refine.rounds 0", 2, "--refine.rounds must be at least 1", MUG),
+    C("remove-zero-turns", "remove {scene} --box mug.json --out v --views.turns 0", 2, "--views.turns must be at least 1", MUG),
+    C("remove-negative-reach", "remove {scene} --box mug.json --out v --shadow.reach -1", 2, "--shadow.reach must be", MUG),
     C("remove-unknown-removal", "remove {scene} --box mug.json --out v --removal bogus", 2, "--removal 'bogus' is unknown", MUG),
     C("move-unknown-removal", "move {scene} --box mug.json --translate 0.01 0 0 --out v --edit.remove.removal bogus", 2, "--edit.remove.removal 'bogus' is unknown", MUG),
     C("move-zero-refine-steps", "move {scene} --box mug.json --translate 0.01 0 0 --out v --edit.remove.refine.steps 0", 2, "--edit.remove.refine.steps must be at least 1", MUG),

@@ -13,7 +13,16 @@ import pytest
 import torch
 from test_move import _mean_density
 
-from neoedit.edit import Batch, Move, MoveConfig, Remove, RemoveConfig, apply_edit, sketch
+from neoedit.edit import (
+    Batch,
+    Move,
+    MoveConfig,
+    PreviewMove,
+    Remove,
+    RemoveConfig,
+    apply_edit,
+    sketch,
+)
 from neoedit.edit.motion import Motion
 from neoedit.errors import NeoError
 from neoedit.geometry import OrientedBox, motion_about
@@ -70,7 +79,7 @@ def test_an_instant_batch_cuts_one_object_and_previews_another_in_one_version(
     batch = Batch(
         [
             Remove([ball], dataclasses.replace(RemoveConfig(), inpaint=False), "soccer ball"),
-            Move([_mug_motion(objects)], MoveConfig(preview=True), "red mug"),
+            PreviewMove([_mug_motion(objects)], prompt="red mug"),
         ]
     )
     child = apply_edit(parent, batch)
@@ -136,7 +145,7 @@ def test_batches_that_cannot_run_are_refused_before_any_work(move_scene: Path, o
     cut = dataclasses.replace(RemoveConfig(), inpaint=False)
     cases = [
         (Batch([]), "at least one edit"),
-        (Batch([Remove([mug], cut), Move([_mug_motion(objects)], MoveConfig(preview=True))]), "same place"),
+        (Batch([Remove([mug], cut), PreviewMove([_mug_motion(objects)])]), "same place"),
         (Batch([Remove([ball], cut), Move([_mug_motion(objects)], _fast_move())]), "all train or are all instant"),
         (Batch([Batch([Remove([ball], cut)])]), "not batches"),
     ]  # fmt: skip
@@ -187,6 +196,7 @@ def test_a_batch_step_of_a_plan_is_one_version(move_scene: Path, objects, tmp_pa
         ({"type": "batch", "edits": [{"type": "batch", "edits": [{"type": "remove", "prompt": "a"}]}]}, "not batches"),
         ({"type": "remove", "prompt": "a", "edits": [{"type": "remove", "prompt": "b"}]}, "only a batch"),
         ({"type": "batch", "edits": [{"type": "move", "prompt": "a"}]}, "step 1: edits.0: .*needs a motion"),
+        ({"type": "batch", "edits": [{"type": "grasp", "prompt": "a"}]}, "edits.0.type: .*'move' or 'remove'$"),
     ],
 )  # fmt: skip
 def test_a_malformed_batch_step_is_refused_with_its_step(step: dict, message: str):

@@ -269,7 +269,8 @@ def test_small_bench_fills_every_table_with_finite_numbers(small_run):
             psnrs = [float(c) for c in cells[2 : 2 + regions]]
             assert all(math.isfinite(v) and v > 5 for v in psnrs), (title, cells)
             # SSIM, depth RMSE, E_rep and Rest PSNR: every metric column is filled
-            metrics = [float(c) for c in cells[2 : 2 + 4 * regions + 1]]
+            # ... and the footprint's contrast where the object stood
+            metrics = [float(c) for c in cells[2 : 2 + 4 * regions + 2]]
             assert all(math.isfinite(v) for v in metrics), (title, cells)
     units = json.loads((cfg.out / "results.json").read_text())["units"]
     out_psnr = {
@@ -281,6 +282,9 @@ def test_small_bench_fills_every_table_with_finite_numbers(small_run):
     assert out_psnr["neo"] > out_psnr["resample"] + 3
     assert out_psnr["neo"] > out_psnr["pre-edit"] + 5
     assert out_psnr["oracle"] == max(out_psnr.values())
+    # where the object stood, the removal shows the table as the ring around it shows it
+    footprint = {m: units[f"removal_1/{m}"]["result"]["footprint_delta"] for m in out_psnr}
+    assert footprint["neo"] < 0.5 * footprint["pre-edit"], footprint
     moved = units["pick_place_1/neo"]["result"]
     assert moved["out"]["psnr"] > units["pick_place_1/pre-edit"]["result"]["out"]["psnr"] + 3
     assert (cfg.out / "figures" / "removal_1.png").is_file()

@@ -295,11 +295,11 @@ def test_remove_end_to_end(trained: Path, sim_root: Path, tmp_path: Path, capsys
             str(box_file),
             "--out",
             str(out),
-            "--steps",
+            "--refine.steps",
             "60",
-            "--rounds",
+            "--refine.rounds",
             "2",
-            "--turns",
+            "--views.turns",
             "1",
         ]
     )

@@ -346,7 +346,7 @@ def test_a_plan_runs_its_moves_by_the_method_asked_for():
     command's settings; removals and previews stay NEO's."""
     from neoedit.bench.seal3d import Seal3dConfig, SealMove
     from neoedit.edit.plan import PlanConfig, action_edit
-    from neoedit.edit.relocate import Move
+    from neoedit.edit.relocate import Move, PreviewMove
     from neoedit.edit.remove import Remove
 
     box = OrientedBox((0.0, 0.0, 0.05), (0.1, 0.1, 0.1), 0.0)
@@ -360,7 +360,7 @@ def test_a_plan_runs_its_moves_by_the_method_asked_for():
     assert np.allclose(edit.motions[0].transform[:3, 3], [0.1, 0, 0])
     assert isinstance(action_edit(move_step, [box], PlanConfig()), Move)
     preview = action_edit(move_step, [box], PlanConfig(preview=True), move_edit=seal.move_edit())
-    assert isinstance(preview, Move) and preview.cfg.preview
+    assert isinstance(preview, PreviewMove)
     assert isinstance(
         action_edit(remove_step, [box], PlanConfig(), move_edit=seal.move_edit()), Remove
     )

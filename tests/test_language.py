@@ -208,6 +208,25 @@ def test_a_box_known_by_its_top_reaches_down_to_the_support():
     assert support_height(points, top, box, QueryConfig()) == pytest.approx(0.0, abs=0.004)
 
 
+def test_a_ball_box_reaches_down_to_the_table_not_its_own_lower_cap():
+    """Under a ball's relevant points (its upper part) lie its own lower cap's, spread over
+    every height down to the table: the support is the table seen around the footprint
+    (the README demo's ball kept a 1.8 cm cap, left as a pale disc by the removal)."""
+    from neoedit.language.localize import footprint_box, support_height
+
+    rng = np.random.default_rng(1)
+    d = rng.normal(size=(30000, 3))
+    sphere = 0.045 * d / np.linalg.norm(d, axis=1, keepdims=True) + [0.0, 0.0, 0.045]
+    upper = sphere[sphere[:, 2] > 0.03]
+    cap = sphere[(sphere[:, 2] <= 0.028) & (sphere[:, 2] > 0.002)]  # seen from low cameras
+    disc = rng.uniform(-0.08, 0.08, (6000, 2))
+    disc = disc[np.linalg.norm(disc, axis=1) > 0.02]  # the contact hidden
+    table = np.c_[disc, rng.normal(0, 0.001, len(disc))]
+    points = np.concatenate([upper, cap, table])
+    box = footprint_box(upper, QueryConfig())
+    assert support_height(points, upper, box, QueryConfig()) == pytest.approx(0.0, abs=0.002)
+
+
 @pytest.fixture(scope="module")
 def language_scene(trained: Path, sim_root: Path, tmp_path_factory) -> Path:
     """The tiny trained scene with a label-teacher language field (MiniLM names)."""

@@ -29,9 +29,9 @@ from neoedit.edit.language_update import (
     pushed_out_of_footprint,
     update_language,
 )
-from neoedit.edit.pipeline import sketch
+from neoedit.edit.pipeline import apply_edit, sketch
 from neoedit.edit.refine import RefineConfig
-from neoedit.edit.relocate import Motion, Move, MoveConfig, move
+from neoedit.edit.relocate import Motion, Move, MoveConfig, PreviewMove, move
 from neoedit.edit.views import VirtualViewConfig
 from neoedit.errors import NeoError
 from neoedit.fields.composed import ComposedField, TransformedField, moved_field
@@ -192,10 +192,10 @@ def test_move_end_to_end(move_scene: Path, sim_root: Path, tmp_path: Path):
     # the target box now renders what the composite (the teacher without inpainting) shows
     # there, and the rest of the scene renders as before
     motion = Motion(OrientedBox.from_dict(moved.meta.edits[-1].details["boxes"][0]), transform)
-    preview = move(parent, [motion], MoveConfig(preview=True))
+    preview = apply_edit(parent, PreviewMove([motion]))
     # the viewer's instant sketch of that preview: the same render, no new version (the
     # parent's field shared, its metadata untouched); an edit that trains is never sketched
-    sketched = sketch(parent, Move([motion], MoveConfig(preview=True)))
+    sketched = sketch(parent, PreviewMove([motion]))
     assert sketched.field is parent.field and not parent.meta.moves
     assert sketched.meta.edits == parent.meta.edits and len(sketched.meta.moves) == 1
     with pytest.raises(NeoError, match="trains nothing"):
@@ -390,7 +390,7 @@ def test_removal_updates_language_and_keeps_a_single_patch(
     out = tmp_path / "removed"
     args = ["remove", str(move_scene), action["object"], "--out", str(out), *SPARSE_ARGS]
     args.append("--no-report")
-    assert main([*args, "--steps", "30", "--rounds", "1", "--turns", "1"]) == 0
+    assert main([*args, "--refine.steps", "30", "--refine.rounds", "1", "--views.turns", "1"]) == 0
     edited = load_scene(out)
     assert isinstance(edited.field, PatchedField) and len(edited.meta.patches) == 1
     text = load_text_encoder(edited.meta.language.text)
@@ -546,9 +546,10 @@ def test_move_distils_both_regions_or_reuses_the_removal_patch(
     for k, v in load_scene(move_scene).field.state_dict().items():
         assert torch.equal(parent.field.state_dict()[k], v), k  # nor did the parent change
     if reuse:  # NEO's patch student only: refused up front elsewhere
-        for other in ({"preview": True}, {"student": "field"}):
-            with pytest.raises(NeoError, match="applies to NEO's patch student only"):
-                move(parent, [motion], _fast_move_config(reuse_removal_patch=True, **other))
+        with pytest.raises(NeoError, match="applies to NEO's patch student only"):
+            move(parent, [motion], _fast_move_config(reuse_removal_patch=True, student="field"))
+        with pytest.raises(NeoError, match="applies to NEO's patch student, not to a preview"):
+            apply_edit(parent, PreviewMove([motion], _fast_move_config(reuse_removal_patch=True)))
     assert _mean_density(parent, source) > 20 * _mean_density(child, source)
     assert _mean_density(child, target) > 20 * _mean_density(parent, target)
 
@@ -615,6 +616,27 @@ def test_the_python_facade_loads_moves_removes_renders_and_saves(move_scene: Pat
         neo.save(s3, move_scene, overwrite=True)  # never over the version it started from
     with pytest.raises(neo.NeoError, match="camera index"):
         s3.render(index=10_000)
+
+
+def test_the_python_facade_applies_several_edits_as_one_version(move_scene: Path, sim_root: Path):
+    """``s.batch().remove(...).move(...).apply()``: one new version, one history entry that
+    lists both edits; two edits of one place are refused before any work."""
+    objects = json.loads((sim_root / "pick_place_1" / "pre" / "objects.json").read_text())
+    box = {o["name"]: OrientedBox.from_dict(o["box"]) for o in objects["objects"]}
+    s = neo.load(move_scene)
+    cut = neo.RemoveConfig(inpaint=False)
+    batch = s.batch().remove(box["soccer ball"], cfg=cut)
+    s2 = batch.move(box["red mug"], translate=(0.08, 0.04, 0.0), preview=True).apply()
+    assert len(s2.scene.meta.edits) == len(s.scene.meta.edits) + 1
+    record = s2.scene.meta.edits[-1]
+    assert record.type == "batch" and [p.type for p in record.parts()] == ["remove", "move"]
+    assert s2.scene.meta.parent == s.scene.meta.version_id
+    assert len(s2.scene.meta.cut_boxes) == 1 and len(s2.scene.meta.moves) == 1
+    assert not s.scene.meta.cut_boxes and not s.scene.meta.moves  # s is unchanged
+    twice = s.batch().remove(box["red mug"], cfg=cut)
+    twice = twice.move(box["red mug"], translate=(0.01, 0.0, 0.0), preview=True)
+    with pytest.raises(neo.NeoError, match="overlap"):
+        twice.apply()
 
 
 @pytest.mark.parametrize("reuse", [False, True])

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import torch
 
 from neoedit.cameras import Cameras, look_at
@@ -87,9 +88,31 @@ def test_a_box_reaching_under_the_table_is_seated_on_it():
     seated = seated_on_support(scene, low)
     assert abs((seated.center_m[2] - seated.size_m[2] / 2) - 0.0) < 0.001
     assert abs((seated.center_m[2] + seated.size_m[2] / 2) - 0.02) < 1e-9  # top kept
-    high = OrientedBox((0.0, 0.0, 0.012), (0.1, 0.04, 0.02), 20.0)  # already above: unchanged
-    assert seated_on_support(scene, high) == high
+    # a box that stops short of the table is lowered onto it (else the object's base stays)
+    high = OrientedBox((0.0, 0.0, 0.022), (0.1, 0.04, 0.02), 20.0)  # bottom 12 mm above
+    lowered = seated_on_support(scene, high)
+    assert abs(lowered.center_m[2] - lowered.size_m[2] / 2) < 0.001
+    assert abs((lowered.center_m[2] + lowered.size_m[2] / 2) - 0.032) < 1e-9  # top kept
+    above = OrientedBox((0.0, 0.0, 0.06), (0.1, 0.04, 0.02), 20.0)  # 5 cm up: another support
+    assert seated_on_support(scene, above) == above
     assert seated_on_support(SimpleNamespace(surface_points_m=None), low) == low
+
+
+def test_support_loss_keeps_the_table_but_lets_the_patch_fill_it():
+    """L_keep penalises opacity the patch takes away under the box, not opacity it adds (a
+    support the object hid from every camera is part empty in the unedited field)."""
+    from neoedit.edit.removal_loss import support_loss
+
+    kept = torch.tensor([0.9, 0.3])  # a seen table, a hidden one
+    same = -100.0 * torch.log1p(-kept)  # the densities that give those opacities over 1 cm
+    assert float(support_loss(same, kept)) == pytest.approx(0.0, abs=1e-6)
+    filled = torch.tensor([same[0].item(), 500.0], requires_grad=True)  # the hidden one filled
+    assert float(support_loss(filled, kept).detach()) == pytest.approx(0.0, abs=1e-6)
+    emptied = torch.tensor([0.0, same[1].item()], requires_grad=True)  # the seen one emptied
+    loss = support_loss(emptied, kept)
+    assert float(loss.detach()) == pytest.approx(0.45, abs=1e-4)
+    loss.backward()
+    assert emptied.grad[0] < 0 and emptied.grad[1] == 0  # only the emptied point is pushed up
 
 
 def test_grow_mask_is_a_disc_dilation():

@@ -29,10 +29,11 @@ from neoedit.cameras.rays import CameraTensors
 from neoedit.data import SceneData, load_scene_data
 from neoedit.edit.language_update import LanguageUpdateConfig
 from neoedit.edit.pipeline import Edit, apply_edit
-from neoedit.edit.relocate import Motion, Move, MoveConfig, check_motions
+from neoedit.edit.relocate import Motion, Move, MoveConfig, PreviewMove, check_motions
 from neoedit.edit.remove import Remove, RemoveConfig
 from neoedit.errors import NeoError
 from neoedit.eval.evaluate import evaluate
+from neoedit.eval.footprint import removal_footprint
 from neoedit.geometry import OrientedBox
 from neoedit.geometry.box import box_iou_3d
 from neoedit.language.localize import NoMatch, QueryConfig, query_scene
@@ -142,15 +143,14 @@ def remove_config(method: str, scale: float = 1.0) -> RemoveConfig:
 
 
 def move_config(method: str, scale: float = 1.0) -> MoveConfig:
-    """NEO's move configuration for 'neo', 'preview' or an ablation (which changes one
-    part); ``scale`` multiplies every training step count."""
+    """NEO's move configuration for 'neo', 'preview' (which uses its margins and language
+    update) or an ablation (which changes one part); ``scale`` multiplies every training
+    step count."""
     base = MoveConfig()
     base.remove.refine.steps = _steps(base.remove.refine.steps, scale)
     d = base.distill
     d.field_steps, d.render_steps = _steps(d.field_steps, scale), _steps(d.render_steps, scale)
     base.language = language_config(scale)
-    if method == "preview":
-        return dataclasses.replace(base, preview=True)
     if method in ABLATIONS:
         return ABLATIONS[method](base)
     return base
@@ -166,11 +166,13 @@ def seal3d_config(scale: float = 1.0) -> Seal3dConfig:
 
 
 def move_edit(method: str, motions: list[Motion], scale: float, prompt: str) -> Edit:
-    """The typed edit of one pick-and-place method: the Seal-3D-style baseline's, or NEO's
-    (the preview and the ablations are configurations of it)."""
+    """The typed edit of one pick-and-place method: the Seal-3D-style baseline's, NEO's
+    preview, or NEO's (the ablations are configurations of it)."""
     if method == "seal3d":
         return SealMove(motions, seal3d_config(scale), prompt)
-    if method not in ("neo", "preview", *ABLATIONS):
+    if method == "preview":
+        return PreviewMove(motions, move_config(method, scale), prompt)
+    if method not in ("neo", *ABLATIONS):
         known = ", ".join(("neo", "preview", "seal3d", *ABLATIONS))
         raise NeoError(f"unknown move method {method!r} (choose from {known})")
     return Move(motions, move_config(method, scale), prompt)
@@ -303,7 +305,17 @@ def _run_action(
             if inp.keep is not None:
                 save_scene(inp.keep, scene)
     row.update(evaluate(scene, post, "test", [source], targets, max_views=inp.eval_views))
+    row["footprint_delta"] = _footprint(scene, source)
     return row, render_view(scene, post)
+
+
+def _footprint(scene: Scene, box: OrientedBox) -> float | None:
+    """How far the support where the object stood differs in colour from the ring around
+    it, as the scene's scan cameras see it (largest channel, 0-255; None when none does)."""
+    try:
+        return removal_footprint(scene, box).delta
+    except NeoError:
+        return None
 
 
 def _found_iou(scene: Scene, name: str, truth: OrientedBox, inp: SceneInputs) -> float:

@@ -71,7 +71,7 @@ def metric_table(
 ) -> list[str]:
     head = ["method", "n"]
     head += [f"{r.title()} {NAMES[m]}" for m, _ in METRICS for r in regions]
-    head += ["Rest PSNR", "time [s]", "query IoU"]
+    head += ["Rest PSNR", "footprint Δ", "time [s]", "query IoU"]
     after = any("query_after_iou" in r for m in methods for r in _results(records, units, kind, m))
     if after:  # moves: the name queried on the edited version, against the true target box
         head.append("query IoU after")
@@ -83,6 +83,8 @@ def metric_table(
         cells = [LABELS[method], str(len(rows))]
         cells += [_fmt(_mean(rows, r, m), d) for m, d in METRICS for r in regions]
         cells.append(_fmt(_mean(rows, "rest", "psnr"), 2))
+        deltas = [r["footprint_delta"] for r in rows if r.get("footprint_delta") is not None]
+        cells.append(_fmt(float(np.mean(deltas)) if deltas else None, 1))
         secs = [r["seconds"] for r in rows if r.get("seconds") is not None]
         cells.append(_fmt(float(np.mean(secs)) if secs else None, 1))
         for key in ("query_iou", "query_after_iou") if after else ("query_iou",):
@@ -212,6 +214,12 @@ def write_report(ctx: Context, units: list[Unit], records: dict, summary: dict[s
         "NeRFiller-style depth variant is supervised by the simulator's depth, filled into "
         "the holes (NeRFiller estimates depth from the inpainted images): it favours the "
         "baseline.",
+        "",
+        "*footprint Δ*: where the object stood (the true source box's bottom), the largest "
+        "channel difference (0-255) between the support's median colour and that of a ring "
+        "1-1.5 footprint sizes around it, as the scan's cameras see them "
+        "(`neoedit.eval.footprint`): 0 is a seamless footprint, a pale disc or a left-over "
+        "base shows as tens.",
         "",
         "### Table I, ablations — NEO's removal with one part changed",
         "",

@@ -8,7 +8,7 @@ import json
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 import numpy as np
 import tyro
@@ -46,7 +46,11 @@ class RemoveCommand:
     """Folder of 2-D masks of the object (non-zero = the object; e.g. SAM's), each named
     after a photo of the scan, instead of a prompt: the box is where the field's surface
     under the masks lies."""
-    edit: tyro.conf.OmitArgPrefixes[RemoveConfig] = dataclasses.field(default_factory=RemoveConfig)
+    edit: Annotated[RemoveConfig, tyro.conf.arg(name="")] = dataclasses.field(
+        default_factory=RemoveConfig
+    )
+    """(Its options are spelt without ``edit.``; its groups keep their names:
+    ``--refine.steps``, ``--shadow.no-enabled``, ``--views.turns``.)"""
     query: QueryConfig = dataclasses.field(default_factory=QueryConfig)
     json: Path | None = None
     """Also write the result here as JSON (the new version, its parent, the boxes, seconds
@@ -255,7 +259,7 @@ class MoveCommand:
         self.query.check()  # before any loading or training
         check_move_method(self.method, self.preview, self.edit, self.seal3d, "--edit")
         from neoedit.edit.pipeline import Edit, apply_edit
-        from neoedit.edit.relocate import Motion, Move
+        from neoedit.edit.relocate import Motion, Move, PreviewMove
         from neoedit.scene import save_scene
 
         transform = self.motion()
@@ -265,9 +269,9 @@ class MoveCommand:
             edit: Edit = (
                 SealMove(motions, self.seal3d, self.prompt)
                 if self.method == "seal3d"
-                else Move(
-                    motions, dataclasses.replace(self.edit, preview=self.preview), self.prompt
-                )
+                else PreviewMove(motions, self.edit, self.prompt)
+                if self.preview
+                else Move(motions, self.edit, self.prompt)
             )
             child = apply_edit(scene, edit)
             save_scene(self.out, child, extras=report_writer(self.report, scene, child))
@@ -324,8 +328,6 @@ def check_move_method(
     """Refuse, before any work, settings the chosen method would ignore or cannot run with:
     NEO's options (``where``.*) with the Seal-3D-style baseline, --seal3d.* with NEO, a
     preview of the baseline."""
-    if neo.preview:  # the nested field is the library's; the command's switch is --preview
-        raise NeoError(f"{where}.preview is set by --preview: write --preview")
     if method == "seal3d":
         if preview:
             raise NeoError("--preview and --method seal3d do not combine: a preview trains nothing")
@@ -341,4 +343,4 @@ def check_move_method(
             "--seal3d.* options set the Seal-3D-style baseline: add --method seal3d, or set "
             f"NEO's move with {where}.*"
         )
-    check_move_config(dataclasses.replace(neo, preview=preview), where)
+    check_move_config(neo, where)

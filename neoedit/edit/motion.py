@@ -31,10 +31,10 @@ realised transforms do); the field turns the object exactly, its boxes keep only
 @dataclass
 class MoveConfig:
     """How NEO moves objects (the Seal-3D-style baseline has its own configuration,
-    :class:`neoedit.bench.seal3d.Seal3dConfig`)."""
+    :class:`neoedit.bench.seal3d.Seal3dConfig`; the instant preview,
+    :class:`neoedit.edit.relocate.PreviewMove`, uses ``remove``'s margins,
+    ``target_floor_m`` and ``language``)."""
 
-    preview: bool = False
-    """Instant preview: record the move, render it by composition, train nothing."""
     remove: RemoveConfig = field(
         default_factory=lambda: RemoveConfig(refine=RefineConfig(steps=90))
     )
@@ -72,8 +72,8 @@ class MoveConfig:
     shadow_follows: bool = True
     """The shadow found at a source (``remove.shadow``) is laid down again around its
     target: a shade, a ratio map on the target's support (neoedit/fields/shade.py),
-    translated with the object. NEO's carried object only (``carry``, the patch student, not
-    ``preview``): a distilled target learns from a teacher without it."""
+    translated with the object. NEO's carried object only (``carry``, the patch student; not
+    the preview): a distilled target learns from a teacher without it."""
     relight: bool = True
     """A carried object is relit: the scan's light is estimated from the object as the
     scan's views show it (neoedit/edit/relight.py) and its colours take the shading of

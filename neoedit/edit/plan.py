@@ -36,7 +36,7 @@ from neoedit.edit.checks import check_edit_boxes
 from neoedit.edit.inpaint import Inpainter
 from neoedit.edit.motion import check_motions
 from neoedit.edit.pipeline import Edit, apply_edit
-from neoedit.edit.relocate import Motion, Move, MoveConfig
+from neoedit.edit.relocate import Motion, Move, MoveConfig, PreviewMove
 from neoedit.edit.remove import Remove, RemoveConfig
 from neoedit.errors import NeoError
 from neoedit.geometry import OrientedBox, is_rigid, motion_about
@@ -174,6 +174,8 @@ def parse_plan(raw: Any, where: str = "plan") -> list[Action]:
             err = e.errors()[0]
             loc = ".".join(str(x) for x in err["loc"])
             msg = err["msg"].removeprefix("Value error, ")
+            if err["type"] == "literal_error" and err["loc"][:1] == ("edits",):
+                msg = "a batch's edits are of type 'move' or 'remove'"  # not 'batch'
             raise NeoError(f"{where}: step {i}: {loc + ': ' if loc else ''}{msg}") from None
     return actions
 
@@ -276,10 +278,11 @@ def action_edit(
         rcfg = cfg.remove if not cfg.preview else dataclasses.replace(cfg.remove, inpaint=False)
         return Remove(boxes, rcfg, action.prompt, inpainter)
     motions = _motions(action, boxes)
-    if move_edit is not None and not cfg.preview:
+    if cfg.preview:
+        return PreviewMove(motions, cfg.move, action.prompt)
+    if move_edit is not None:
         return move_edit(motions, action.prompt)
-    mcfg = dataclasses.replace(cfg.move, preview=cfg.preview)
-    return Move(motions, mcfg, action.prompt, inpainter)
+    return Move(motions, cfg.move, action.prompt, inpainter)
 
 
 def _motions(action: Action, boxes: list[OrientedBox]) -> list[Motion]:

@@ -76,8 +76,9 @@ class RefineConfig:
     below_m: float = 0.03
     """The patch's region reaches this far under the box's bottom (the support surface)."""
     lambda_keep: float = 1.0
-    """Weight of L_keep: the patch keeps the unedited field's density (as 1 cm opacity, L1)
-    on random points of the region under the box's bottom (the support). Without it L_reg
+    """Weight of L_keep: the patch keeps at least the unedited field's density (as 1 cm
+    opacity, L1 on what it takes away; it may add) on random points of the region under the
+    box's bottom (the support). Without it L_reg
     can empty the table through the patch's own MLP (measured on NEO-Sim pick_place_1: the
     table under the mug went transparent, a white patch)."""
     lr: float = 1e-2

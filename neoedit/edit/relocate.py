@@ -1,9 +1,9 @@
 """``neo move``: relocate objects by region-composed teacher -> student distillation
 (paper Sec. III-C, III-D) as a new scene version.
 
-* ``preview``: no training. The version records the move; every render composes the
-  current field (outside), nothing in the source box, and the field under the inverse
-  motion in the target box (about a second, like Seal-3D's preview).
+* the preview (:class:`PreviewMove`): no training. The version records the move; every
+  render composes the current field (outside), nothing in the source box, and the field
+  under the inverse motion in the target box (about a second, like Seal-3D's preview).
 * ``neo`` (the paper): the source box is removed and inpainted (the removal pipeline,
   :func:`neoedit.edit.remove.inpaint_removal`), the teacher is composed region by region
   — current field outside, removed+inpainted field in the source box, moved field in the
@@ -36,14 +36,22 @@ from neoedit.geometry.box import box_iou_3d
 from neoedit.rendering.occupancy import cells_in_boxes, refresh_grid
 from neoedit.scene import Scene
 
-__all__ = ["Motion", "Move", "MoveConfig", "check_motions", "check_move_config", "move"]
+__all__ = [
+    "Motion",
+    "Move",
+    "MoveConfig",
+    "PreviewMove",
+    "check_motions",
+    "check_move_config",
+    "move",
+]
 
 
 @dataclass
 class Move:
     """Move every ``motions[i].box`` by its transform (paper Sec. III-C/D): NEO's composed
-    teacher distilled into patches, or the instant preview (``cfg.preview``). Run it with
-    :func:`~neoedit.edit.pipeline.apply_edit`."""
+    teacher distilled into patches. Run it with :func:`~neoedit.edit.pipeline.apply_edit`;
+    :class:`PreviewMove` is the instant preview."""
 
     motions: list[Motion]
     cfg: MoveConfig = field(default_factory=MoveConfig)
@@ -55,31 +63,56 @@ class Move:
         check_move_config(cfg)
         check_motions(parent, self.motions)
         sources = working_boxes(parent, [m.box for m in self.motions], cfg.remove)
-        found: list[Shadow | None] = []
-        if not cfg.preview:  # NEO inpaints the source: its shadow too
-            found = scene_shadows(parent, sources, cfg.remove.shadow)
+        found = scene_shadows(parent, sources, cfg.remove.shadow)  # inpainted with the source
         shadows = [s.slab for s in found if s is not None]
         move = MoveRegions.of(self.motions, sources, cfg.target_floor_m)
         targets, transforms = move.targets, move.transforms
         shades = _shades(found, transforms, cfg)
-        method = "preview" if cfg.preview else "neo"
-        record = move.record(self.prompt, method, self.motions, shadows, cfg)
+        record = move.record(self.prompt, "neo", self.motions, shadows, cfg)
         record.details["shade_boxes"] = [box.to_dict() for box, _ in shades]
-        if cfg.preview:
-            _check_not_into_cuts(parent, targets)
 
         def run(child: Scene, timings: Timings) -> None:
-            if cfg.preview:
-                with timings.stage("preview"):
-                    _preview(child, sources, targets, transforms)
-                return
             start = settled_start(parent, child, cfg.distill, timings)
             distil_move(
                 start, child, sources, targets, transforms, cfg, self.inpainter, timings, shadows,
                 shades,
             )  # fmt: skip
 
-        return Prepared(record, run, move.language(), cfg.language, instant=cfg.preview)
+        return Prepared(record, run, move.language(), cfg.language)
+
+
+@dataclass
+class PreviewMove:
+    """The instant preview of a move: the version records it, and every render composes
+    the current field outside, nothing in the source box and the field under the inverse
+    motion in the target box (about a second, like Seal-3D's preview); nothing is trained,
+    so it can be :func:`~neoedit.edit.pipeline.sketch`-ed. Of ``cfg`` it uses the source's
+    margins (``cfg.remove``), ``target_floor_m`` and the language update."""
+
+    motions: list[Motion]
+    cfg: MoveConfig = field(default_factory=MoveConfig)
+    prompt: str | None = None
+
+    def prepare(self, parent: Scene) -> Prepared:
+        cfg = self.cfg
+        check_move_config(cfg)
+        if cfg.reuse_removal_patch:
+            raise NeoError(
+                "--edit.reuse-removal-patch applies to NEO's patch student, not to a preview "
+                "(which trains nothing)"
+            )
+        check_motions(parent, self.motions)
+        sources = working_boxes(parent, [m.box for m in self.motions], cfg.remove)
+        move = MoveRegions.of(self.motions, sources, cfg.target_floor_m)
+        record = move.record(self.prompt, "preview", self.motions, [], cfg)
+        record.details["shade_boxes"] = []
+        _check_not_into_cuts(parent, move.targets)
+
+        def run(child: Scene, timings: Timings) -> None:
+            with timings.stage("preview"):
+                _preview(child, sources, move.targets, move.transforms)
+
+        return Prepared(record, run, move.language(), cfg.language, instant=True)
 
 
 def _shades(
@@ -88,7 +121,7 @@ def _shades(
     """The shadows found at the sources laid down under their motions (slab, ratio map),
     when they follow the object: NEO's carried object only (a distilled target, or the
     whole-field student, learns the target from a teacher without them)."""
-    if cfg.preview or not (cfg.shadow_follows and cfg.carry and cfg.student == "patch"):
+    if not (cfg.shadow_follows and cfg.carry and cfg.student == "patch"):
         return []
     return [s.shade_at(t) for s, t in zip(found, transforms, strict=True) if s is not None]
 
@@ -98,10 +131,10 @@ def check_move_config(cfg: MoveConfig, where: str = "--edit") -> None:
     ``where``: the option prefix the messages name."""
     if cfg.student not in STUDENTS:
         raise NeoError(f"unknown student {cfg.student!r} (choose from {', '.join(STUDENTS)})")
-    if cfg.reuse_removal_patch and (cfg.preview or cfg.student != "patch"):
+    if cfg.reuse_removal_patch and cfg.student != "patch":
         raise NeoError(
             f"{where}.reuse-removal-patch applies to NEO's patch student only (not with "
-            f"--preview or {where}.student field)"
+            f"{where}.student field)"
         )
     cfg.remove.check(f"{where}.remove")
     cfg.distill.check(f"{where}.distill")

@@ -84,16 +84,17 @@ class RemoveConfig:
     def check(self, where: str = "") -> None:
         """Refuse settings the removal cannot run with, before any loading or query;
         ``where``: the prefix its options carry on the command line ('': none, as in
-        ``neo remove --steps``; '--edit.remove' in ``neo move``)."""
+        ``neo remove --margin-m``, whose groups keep theirs: ``--refine.steps``;
+        '--edit.remove' in ``neo move``)."""
         if self.removal not in REMOVAL_MODES:
             raise NeoError(
                 f"{spelt(where, 'removal')} {self.removal!r} is unknown (choose from "
                 f"{', '.join(REMOVAL_MODES)})"
             )
-        self.refine.check(where and f"{where}.refine")
-        self.shadow.check(where and f"{where}.shadow")
+        self.refine.check(spelt(where, "refine"))
+        self.shadow.check(spelt(where, "shadow"))
         if self.views.turns < 1:
-            raise NeoError(f"{spelt(where and f'{where}.views', 'turns')} must be at least 1")
+            raise NeoError(f"{spelt(spelt(where, 'views'), 'turns')} must be at least 1")
 
 
 @dataclass
@@ -242,10 +243,12 @@ def working_boxes(scene: Scene, boxes: list[OrientedBox], cfg: RemoveConfig) -> 
 
 
 def seated_on_support(scene: Scene, box: OrientedBox, ring_m: float = 0.03) -> OrientedBox:
-    """``box`` with its bottom raised to the support surface when it reaches below it (a
-    query box can end a few mm under the table top; cutting that would open a hole in the
-    table). The support is the median height of the surface points in a ring around the
-    box's footprint near its bottom; the box is returned unchanged without such points."""
+    """``box`` with its bottom on the support surface when it ends within 2 cm of it:
+    raised when it reaches below (a query box can end a few mm under the table top; cutting
+    that would open a hole in the table), lowered when it stops short (the object's base
+    would stay behind: a ball's lower cap, left as a pale disc on the table). The support is
+    the median height of the surface points in a ring around the box's footprint near its
+    bottom; the box is returned unchanged without such points."""
     if scene.surface_points_m is None:
         return box
     pts = scene.surface_points_m.cpu().numpy().astype(np.float64)
@@ -258,9 +261,8 @@ def seated_on_support(scene: Scene, box: OrientedBox, ring_m: float = 0.03) -> O
     if int(ring.sum()) < 20:
         return box
     support = float(np.median(pts[ring, 2]))
-    bottom = box.center_m[2] - box.size_m[2] / 2
     top = box.center_m[2] + box.size_m[2] / 2
-    return box if support <= bottom or support >= top - 0.005 else box.with_bottom(support)
+    return box if support >= top - 0.005 else box.with_bottom(support)
 
 
 @torch.no_grad()

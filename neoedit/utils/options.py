@@ -166,6 +166,12 @@ def _omits_prefix(hint: Any) -> bool:
     return any(m is tyro.conf.OmitArgPrefixes for m in getattr(hint, "__metadata__", ()))
 
 
+def _unnamed(hint: Any) -> bool:
+    """A nested config spelt without its own name but with its groups' (``tyro.conf.arg(
+    name="")``: ``neo remove --refine.steps``, not ``--edit.refine.steps``)."""
+    return any(getattr(m, "name", None) == "" for m in getattr(hint, "__metadata__", ()))
+
+
 def check_options(cfg: Any, path: tuple[str, ...] = (), omit: bool = False) -> None:
     """Every numeric option of a (nested) config dataclass by the module's rules; tuples of
     numbers (translations, boxes) only finite. Raises :class:`NeoError` naming the flag.
@@ -177,7 +183,8 @@ def check_options(cfg: Any, path: tuple[str, ...] = (), omit: bool = False) -> N
         here = (*path, f.name)
         if dataclasses.is_dataclass(value) and not isinstance(value, type):
             below = omit or _omits_prefix(hints.get(f.name))
-            check_options(value, path if below else here, below)
+            unnamed = below or _unnamed(hints.get(f.name))
+            check_options(value, path if unnamed else here, below)
         elif _number(value):
             _check_number(f.name, value, f, flag(here))
         elif isinstance(value, (tuple, list)):

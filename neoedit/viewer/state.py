@@ -25,7 +25,7 @@ import numpy as np
 import torch
 
 from neoedit.edit.pipeline import sketch
-from neoedit.edit.relocate import Motion, Move, MoveConfig
+from neoedit.edit.relocate import Motion, MoveConfig, PreviewMove
 from neoedit.edit.remove import Remove, RemoveConfig
 from neoedit.errors import NeoError
 from neoedit.geometry import OrientedBox, motion_about
@@ -206,9 +206,11 @@ class ViewerState:
             self.discard_preview()
             return None
         transform = motion_about(np.asarray(result.box.center_m), t, float(yaw_deg))
-        cfg = dataclasses.replace(self.cfg.move, preview=True, reuse_removal_patch=False)
+        cfg = dataclasses.replace(self.cfg.move, reuse_removal_patch=False)  # trains nothing
         with torch.no_grad():
-            preview = sketch(scene, Move([Motion(result.box, transform)], cfg, result.prompt))
+            preview = sketch(
+                scene, PreviewMove([Motion(result.box, transform)], cfg, result.prompt)
+            )
         target = OrientedBox.from_dict(preview.meta.moves[-1]["target"])
         edit = PendingEdit("move", result.box, result.prompt, preview, transform, target)
         return self._set_pending(scene, edit)
@@ -250,7 +252,7 @@ class ViewerState:
                 parent,
                 edit,
                 self.cfg.remove,
-                dataclasses.replace(self.cfg.move, preview=False),
+                self.cfg.move,
                 report,
             )
             if self.store is None:
