@@ -52,9 +52,11 @@ class EditableScene:
             return self.find(target, query), target
         if isinstance(target, OrientedBox):
             return [target], None
-        boxes = list(target)
+        boxes = list(target) if isinstance(target, (list, tuple)) else []
         if not boxes or not all(isinstance(b, OrientedBox) for b in boxes):
-            raise NeoError("give a prompt, a box or a list of boxes")
+            raise NeoError(
+                f"give a prompt, a box or a list of boxes (neo.OrientedBox), not {target!r:.60}"
+            )
         return boxes, None
 
     def remove(self, target: Target, cfg=None, query=None) -> EditableScene:
@@ -93,6 +95,7 @@ class EditableScene:
     def _removal(self, target: Target, cfg, query):
         from neoedit.edit.remove import Remove, RemoveConfig
 
+        _check_type(cfg, RemoveConfig, "cfg")
         boxes, prompt = self._boxes(target, query)
         return Remove(boxes, cfg or RemoveConfig(), prompt)
 
@@ -107,8 +110,9 @@ class EditableScene:
     ):
         from neoedit.edit.relocate import Motion, Move, MoveConfig, PreviewMove
 
+        _check_type(cfg, MoveConfig, "cfg")
+        shift, yaw_deg = _motion_numbers(translate, yaw_deg)
         boxes, prompt = self._boxes(target, query)
-        shift = np.asarray(translate, dtype=np.float64).reshape(3)
         motions = [Motion(b, motion_about(np.asarray(b.center_m), shift, yaw_deg)) for b in boxes]
         kind = PreviewMove if preview else Move
         return kind(motions, cfg or MoveConfig(), prompt)
@@ -127,6 +131,30 @@ class EditableScene:
     def cameras(self) -> Cameras:
         """The cameras of the scan the scene was trained on."""
         return self.scene.scan_cameras()[0]
+
+
+def _check_type(value, kind: type, name: str) -> None:
+    """``value`` is None or a ``kind`` (the facade's configs), else one clear NeoError."""
+    if value is not None and not isinstance(value, kind):
+        raise NeoError(f"{name} takes a neo.{kind.__name__}, not {type(value).__name__}")
+
+
+def _motion_numbers(translate: Sequence[float], yaw_deg: float) -> tuple[np.ndarray, float]:
+    """``translate`` as three finite metres and ``yaw_deg`` as a finite angle within
+    [-360, 360] (the command line's rules), else one clear NeoError."""
+    try:
+        shift = np.asarray(translate, dtype=np.float64).reshape(3)
+        yaw = float(yaw_deg)
+    except (TypeError, ValueError):
+        raise NeoError(
+            f"translate takes three numbers (x, y, z) in metres and yaw_deg one number; got "
+            f"{translate!r:.40} and {yaw_deg!r:.20}"
+        ) from None
+    if not (np.isfinite(shift).all() and np.isfinite(yaw)):
+        raise NeoError("translate and yaw_deg must be finite numbers")
+    if abs(yaw) > 360.0:
+        raise NeoError(f"yaw_deg is in degrees, within [-360, 360]; got {yaw:g}")
+    return shift, yaw
 
 
 @dataclass
@@ -175,6 +203,8 @@ def save(scene: EditableScene | Scene, out: str | Path, overwrite: bool = False)
     from neoedit.scene import save_scene
     from neoedit.utils.io import check_writable_output
 
+    if not isinstance(scene, (EditableScene, Scene)):
+        raise NeoError(f"save takes a scene (neo.load's, or an edit's), not {type(scene).__name__}")
     core = scene.scene if isinstance(scene, EditableScene) else scene
     source = scene.source if isinstance(scene, EditableScene) else None
     out = Path(out)

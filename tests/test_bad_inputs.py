@@ -288,6 +288,10 @@ CASES = [
     C("plan-step-2-yaw", "plan {scene} p.json --out st", 2, "step 2: yaw_deg is in degrees", write("p.json", [{"type": "remove", "box": BOX_MUG}, {"type": "move", "box": BOX_MUG, "yaw_deg": 720}])),
     # the fifth probe (batch plans): nested preview switches, a batch's boxes that overlap and
     # a given box moved out of the scene, refused before the store is written
+    C("move-translate-two", "move {scene} --box mug.json --translate 0.1 0 --out v", 2, "error: --translate takes 3 values, got 2 ", MUG),
+    C("move-translate-word", "move {scene} --box mug.json --translate 0.1 a 0 --out v", 2, "error: --translate takes 3 numbers ", MUG),
+    C("move-json-in-out", "move {scene} --box mug.json --translate 0.02 0 0 --out v --json v/r.json", 2, "is inside the output v", MUG),
+    C("move-preview-ignored", "move {scene} --box mug.json --translate 0.02 0 0 --out v --preview --edit.student field", 2, "a preview trains nothing: --edit.student would be ignored", MUG),
     C("move-nested-preview", "move {scene} --box mug.json --translate 0.02 0 0 --out v --edit.preview", 2, "neo move has no --edit.preview", MUG),
     C("plan-nested-preview", "plan {scene} p.json --out st --edit.move.preview", 2, "Unrecognized options: --edit.move.preview", write("p.json", [{"type": "move", "box": BOX_MUG, "translate_m": [0.02, 0, 0]}])),
     C("plan-edit-preview", "plan {scene} p.json --out st --edit.preview", 2, "--edit.preview is set by --preview", write("p.json", [{"type": "remove", "box": BOX_MUG}])),
@@ -316,15 +320,15 @@ CASES = [
     C("render-cameras-under-depth", "render {scene} --cameras cams.json --out r", 2, "would overwrite the render's own depth", cameras_frame(file_path="depth/x.png")),
     # 17. the second probe of issue 42: options under omitted prefixes named as typed, an edit
     # that would not train refused, one object moved once, a view too big for memory
-    C("remove-zero-steps", "remove {scene} --box mug.json --out v --refine.steps 0", 2, "--refine.steps must be at least 1", MUG),
-    C("remove-zero-rounds", "remove {scene} --box mug.json --out v --refine.rounds 0", 2, "--refine.rounds must be at least 1", MUG),
-    C("remove-zero-turns", "remove {scene} --box mug.json --out v --views.turns 0", 2, "--views.turns must be at least 1", MUG),
+    C("remove-zero-steps", "remove {scene} --box mug.json --out v --refine.steps 0", 2, "--refine.steps must be >= 1, got 0", MUG),
+    C("remove-zero-rounds", "remove {scene} --box mug.json --out v --refine.rounds 0", 2, "--refine.rounds must be >= 1, got 0", MUG),
+    C("remove-zero-turns", "remove {scene} --box mug.json --out v --views.turns 0", 2, "--views.turns must be >= 1, got 0", MUG),
     C("remove-negative-reach", "remove {scene} --box mug.json --out v --shadow.reach -1", 2, "--shadow.reach must be", MUG),
     C("remove-unknown-removal", "remove {scene} --box mug.json --out v --removal bogus", 2, "--removal 'bogus' is unknown", MUG),
     C("move-unknown-removal", "move {scene} --box mug.json --translate 0.01 0 0 --out v --edit.remove.removal bogus", 2, "--edit.remove.removal 'bogus' is unknown", MUG),
-    C("move-zero-refine-steps", "move {scene} --box mug.json --translate 0.01 0 0 --out v --edit.remove.refine.steps 0", 2, "--edit.remove.refine.steps must be at least 1", MUG),
+    C("move-zero-refine-steps", "move {scene} --box mug.json --translate 0.01 0 0 --out v --edit.remove.refine.steps 0", 2, "--edit.remove.refine.steps must be >= 1, got 0", MUG),
     C("move-one-object-twice", "move {scene} --box mugs.json --translate 0.01 0 0 --out v", 2, "start from the same region", write("mugs.json", [BOX_MUG, BOX_MUG])),
-    C("move-short-translate", "move {scene} --box mug.json --translate 1 2 --out v", 2, "argument count 3 of `FLOAT FLOAT FLOAT`", MUG),
+    C("move-short-translate", "move {scene} --box mug.json --translate 1 2 --out v", 2, "--translate takes 3 values, got 2", MUG),
     C("render-view-beyond-memory", "render {scene} --cameras cams.json --out r", 2, "GiB of memory", cameras(w=32768, h=32768, cx=16384.0, cy=16384.0)),
     # 18. the third probe of issue 42: one range per option whatever the value, the conflict
     # named as the user meets it, the thing at a path named for what it is

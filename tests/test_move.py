@@ -548,8 +548,6 @@ def test_move_distils_both_regions_or_reuses_the_removal_patch(
     if reuse:  # NEO's patch student only: refused up front elsewhere
         with pytest.raises(NeoError, match="applies to NEO's patch student only"):
             move(parent, [motion], _fast_move_config(reuse_removal_patch=True, student="field"))
-        with pytest.raises(NeoError, match="applies to NEO's patch student, not to a preview"):
-            apply_edit(parent, PreviewMove([motion], _fast_move_config(reuse_removal_patch=True)))
     assert _mean_density(parent, source) > 20 * _mean_density(child, source)
     assert _mean_density(child, target) > 20 * _mean_density(parent, target)
 
@@ -633,10 +631,26 @@ def test_the_python_facade_applies_several_edits_as_one_version(move_scene: Path
     assert s2.scene.meta.parent == s.scene.meta.version_id
     assert len(s2.scene.meta.cut_boxes) == 1 and len(s2.scene.meta.moves) == 1
     assert not s.scene.meta.cut_boxes and not s.scene.meta.moves  # s is unchanged
+    # a preview move out of a box this version cuts would bring the cut object back
+    with pytest.raises(neo.NeoError, match="the object's box meets a box this version removes"):
+        s2.move(box["soccer ball"], translate=(-0.1, 0.1, 0.0), preview=True)
     twice = s.batch().remove(box["red mug"], cfg=cut)
     twice = twice.move(box["red mug"], translate=(0.01, 0.0, 0.0), preview=True)
     with pytest.raises(neo.NeoError, match="overlap"):
         twice.apply()
+    # misuse gets one NeoError that names what is wrong, before any work
+    mug = box["red mug"]
+    for call, message in (
+        (lambda: s.remove(42), "give a prompt, a box or a list of boxes"),
+        (lambda: s.batch().remove(s.batch()), "give a prompt, a box or a list of boxes"),
+        (lambda: s.move(mug, translate=(0.1, 0.0)), "translate takes three numbers"),
+        (lambda: s.move(mug, translate=(0.1, 0, 0), yaw_deg=1e9, preview=True), "within"),
+        (lambda: s.move(mug, translate=(float("nan"), 0, 0)), "must be finite"),
+        (lambda: s.remove(mug, cfg={"inpaint": False}), "cfg takes a neo.RemoveConfig"),
+        (lambda: neo.save("hello", "unused"), "save takes a scene"),
+    ):
+        with pytest.raises(neo.NeoError, match=message):
+            call()
 
 
 @pytest.mark.parametrize("reuse", [False, True])

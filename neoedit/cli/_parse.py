@@ -91,6 +91,14 @@ def condense(text: str, verb: str = "neo", options: Sequence[str] = ()) -> str:
     if not sections:
         return text.strip()
     lines = ["error: " + _MARKUP.sub("", _NOISE.sub("", " ".join(sections[0]))).strip()]
+    count, tup = _COUNT.search(lines[0]), _TUPLE.search(lines[0])
+    if count:  # tyro lists every type it tried; the user needs the count
+        option, got, want = count.groups()
+        lines[0] = f"error: {option} takes {want} values, got {got}"
+    elif tup:
+        kinds = tup.group(2).split(", ")
+        what = "numbers" if "float" in kinds else "whole numbers"
+        lines[0] = f"error: {tup.group(1)} takes {len(kinds)} {what}"
     suggestions: list[str] = []
     help_hint = None
     for section in sections[1:]:
@@ -122,6 +130,15 @@ def condense(text: str, verb: str = "neo", options: Sequence[str] = ()) -> str:
     return "\n".join(lines)
 
 
+_COUNT = re.compile(
+    r"Error parsing (--[\w.-]+):.*input length (\d+) did not match expected argument count (\d+)"
+)
+"""tyro's message for a tuple option given too few or too many values."""
+_TUPLE = re.compile(
+    r"Error parsing (--[\w.-]+):.*Could not parse arguments .* into tuple type "
+    r"tuple\[((?:float|int)(?:, (?:float|int))*)\]"
+)
+"""tyro's message for a tuple option whose values are not all numbers."""
 _BAD_VALUE = re.compile(
     r"Error parsing (--[\w.-]+):(?: (invalid literal for int|could not convert string to float))?"
 )

@@ -17,12 +17,13 @@ from rich.markup import escape
 
 from neoedit.bench.seal3d import Seal3dConfig, SealMove
 from neoedit.edit.history import edit_lock
-from neoedit.edit.relocate import MoveConfig, check_move_config
+from neoedit.edit.relocate import MoveConfig, check_move_config, preview_ignored
 from neoedit.edit.remove import RemoveConfig
 from neoedit.errors import NeoError
 from neoedit.geometry import OrientedBox
 from neoedit.language.localize import QueryConfig
 from neoedit.scene import Scene
+from neoedit.utils.options import spelt
 from neoedit.utils.userfile import read_data_file
 
 console = Console()
@@ -132,8 +133,12 @@ def check_json_output(
     an existing file only with --overwrite (checked before any work)."""
     from neoedit.utils.io import check_writable_output
 
-    if path is not None:
-        check_writable_output(path, [*inputs, out], "json", overwrite)
+    if path is None:
+        return
+    out_r = out.resolve()
+    if out_r == path.resolve() or out_r in path.resolve().parents:
+        raise NeoError(f"{path} is inside the output {out}: write the --json file beside it")
+    check_writable_output(path, [*inputs, out], "json", overwrite)
 
 
 def edit_result(out: Path, child: Scene, report: bool = True) -> dict:
@@ -342,5 +347,12 @@ def check_move_method(
         raise NeoError(
             "--seal3d.* options set the Seal-3D-style baseline: add --method seal3d, or set "
             f"NEO's move with {where}.*"
+        )
+    ignored = preview_ignored(neo) if preview else []
+    if ignored:
+        names = ", ".join(spelt(where, n.replace("_", "-")) for n in ignored)
+        raise NeoError(
+            f"a preview trains nothing: {names} would be ignored (drop "
+            f"{'it' if len(ignored) == 1 else 'them'}, or move without --preview)"
         )
     check_move_config(neo, where)

@@ -45,22 +45,22 @@ from neoedit.rendering.renderer import render_chunked
 from neoedit.scene import Scene
 from neoedit.utils.fit import fit
 from neoedit.utils.optim import field_param_groups, make_adam
-from neoedit.utils.options import spelt
+from neoedit.utils.options import at_least_one, spelt
 from neoedit.utils.progress import make_progress
 from neoedit.utils.timings import Timings
 
 
 @dataclass
 class RefineConfig:
-    steps: int = 120
+    steps: int = at_least_one(120)
     """Training steps of the patch."""
-    rounds: int = 3
+    rounds: int = at_least_one(3)
     """Progressive refinement rounds (re-render + re-inpaint at the start of each)."""
     strength: float = 1.0
     """Inpainting strength xi of the first round."""
     strength_final: float = 0.3
     """xi of the last round (linear in between)."""
-    virtual_rays: int = 1024
+    virtual_rays: int = at_least_one(1024)
     """Rays per step from the inpainted virtual views (their M_v pixels)."""
     lambda_depth: float = 1.0
     """Weight of the L1 depth loss [1/m] on the virtual views against the removal preview's
@@ -97,7 +97,7 @@ class RefineConfig:
     support_band_m: float = 0.01
     """Surface points less than this above a box's bottom, inside its footprint, are always
     inpainted (the table under the object)."""
-    scan_views: int = 16
+    scan_views: int = at_least_one(16)
     """Scan cameras (evenly chosen) that the visibility test looks from."""
     crop_margin_px: int = 12
     """Context around the mask in the rendered / inpainted virtual-view crops."""
@@ -112,7 +112,7 @@ class RefineConfig:
     """Sample the network only where a virtual ray crosses the patch's region; what lies in
     front of it and behind it (frozen) is marched once (:mod:`neoedit.rendering.span`).
     False: every step renders the whole ray, as the renderer does."""
-    span_samples: int = 24
+    span_samples: int = at_least_one(24)
     """Coarse density queries and rendered PDF samples per ray on the span (a few
     decimetres at most: fewer than a whole ray's 32 + 32; on NEO-Sim removal_1 the edit's
     Out-PSNR is the same at 24 and 32, within 0.2 dB, see benchmarks/RESULTS.md)."""

@@ -19,6 +19,7 @@ The output has the structure of its input (one radiance field + language field),
 a valid input to every verb, another move included.
 """
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -42,6 +43,7 @@ __all__ = [
     "MoveConfig",
     "PreviewMove",
     "check_motions",
+    "preview_ignored",
     "check_move_config",
     "move",
 ]
@@ -96,17 +98,13 @@ class PreviewMove:
     def prepare(self, parent: Scene) -> Prepared:
         cfg = self.cfg
         check_move_config(cfg)
-        if cfg.reuse_removal_patch:
-            raise NeoError(
-                "--edit.reuse-removal-patch applies to NEO's patch student, not to a preview "
-                "(which trains nothing)"
-            )
         check_motions(parent, self.motions)
         sources = working_boxes(parent, [m.box for m in self.motions], cfg.remove)
         move = MoveRegions.of(self.motions, sources, cfg.target_floor_m)
         record = move.record(self.prompt, "preview", self.motions, [], cfg)
         record.details["shade_boxes"] = []
-        _check_not_into_cuts(parent, move.targets)
+        _check_clear_of_cuts(parent, [m.box for m in self.motions], "the object's box")
+        _check_clear_of_cuts(parent, move.targets, "the target box")
 
         def run(child: Scene, timings: Timings) -> None:
             with timings.stage("preview"):
@@ -124,6 +122,31 @@ def _shades(
     if not (cfg.shadow_follows and cfg.carry and cfg.student == "patch"):
         return []
     return [s.shade_at(t) for s, t in zip(found, transforms, strict=True) if s is not None]
+
+
+PREVIEW_USES = ("remove.margin_m", "remove.neighbour_similarity", "target_floor_m", "language")
+"""What a :class:`PreviewMove` reads of its :class:`MoveConfig` (the source's margins, the
+target's floor, the language update); it trains nothing, so the rest does not apply."""
+
+
+def preview_ignored(cfg: MoveConfig) -> list[str]:
+    """The options of ``cfg`` set away from their defaults that a preview does not use
+    (dotted names, e.g. 'distill.field_steps')."""
+    return [
+        name
+        for name, value, default in _leaves(cfg, MoveConfig())
+        if value != default and not any(name == u or name.startswith(u + ".") for u in PREVIEW_USES)
+    ]
+
+
+def _leaves(cfg, default, prefix: str = ""):
+    """(dotted name, value, default) of every non-dataclass option of ``cfg``."""
+    for f in dataclasses.fields(cfg):
+        value, ref = getattr(cfg, f.name), getattr(default, f.name)
+        if dataclasses.is_dataclass(value) and not isinstance(value, type):
+            yield from _leaves(value, ref, f"{prefix}{f.name}.")
+        else:
+            yield f"{prefix}{f.name}", value, ref
 
 
 def check_move_config(cfg: MoveConfig, where: str = "--edit") -> None:
@@ -153,19 +176,19 @@ def move(
     return apply_edit(parent, Move(motions, cfg, prompt, inpainter))
 
 
-def _check_not_into_cuts(parent: Scene, targets: list[OrientedBox]) -> None:
+def _check_clear_of_cuts(parent: Scene, boxes: list[OrientedBox], what: str) -> None:
     """Render-time removals apply after render-time moves: a preview move into a box that
-    this version cuts or suppresses would be cut too."""
+    this version cuts or suppresses would be cut too, and one out of such a box would bring
+    back what the cut removed (the field under it still holds the object)."""
     pending = [
         OrientedBox.from_dict(b) for b in [*parent.meta.cut_boxes, *parent.meta.suppress_boxes]
     ]
-    for t in targets:
-        if any(box_iou_3d(t, c) > 0 for c in pending):
-            raise NeoError(
-                "the target box meets a box this version removes at render time (a removal "
-                "without inpainting): a preview move there would be cut away too; make the "
-                "full move (neo move without --preview), or remove with inpainting first"
-            )
+    if any(box_iou_3d(b, c) > 0 for b in boxes for c in pending):
+        raise NeoError(
+            f"{what} meets a box this version removes at render time (a removal without "
+            "inpainting): a preview move there would show what was removed, or be cut away; "
+            "make the full move (neo move without --preview), or remove with inpainting first"
+        )
 
 
 def _preview(

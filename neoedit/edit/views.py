@@ -17,11 +17,12 @@ import numpy as np
 from neoedit.cameras import Cameras
 from neoedit.cameras.cameras import look_at
 from neoedit.geometry import OrientedBox
+from neoedit.utils.options import at_least_one
 
 
 @dataclass
 class VirtualViewConfig:
-    turns: int = 2
+    turns: int = at_least_one(2)
     """Turns of the spiral; each turn has 4 views at opposing azimuths."""
     elevation_min_deg: float = 25.0
     elevation_max_deg: float = 60.0
