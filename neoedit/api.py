@@ -33,13 +33,21 @@ Target = str | OrientedBox | Sequence[OrientedBox]
 """What an edit works on: a prompt ("red mug", "mug; duck") or boxes."""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, repr=False)
 class EditableScene:
     """A scene version with its edits as methods; every edit returns a new version."""
 
     scene: Scene
     source: Path | None = None
     """The folder the first version was loaded from (a save never writes over it)."""
+
+    def __repr__(self) -> str:
+        meta = self.scene.meta
+        last = meta.edits[-1].label if meta.edits else "none"
+        return (
+            f"EditableScene(version={meta.version_id!r}, parent={meta.parent!r}, "
+            f"edits={len(meta.edits)}, last edit={last!r}, source={self.source!s})"
+        )
 
     def find(self, prompt: str, query=None) -> list[OrientedBox]:
         """The box of each object ``prompt`` names (``;`` separates several)."""

@@ -288,6 +288,7 @@ CASES = [
     C("plan-step-2-yaw", "plan {scene} p.json --out st", 2, "step 2: yaw_deg is in degrees", write("p.json", [{"type": "remove", "box": BOX_MUG}, {"type": "move", "box": BOX_MUG, "yaw_deg": 720}])),
     # the fifth probe (batch plans): nested preview switches, a batch's boxes that overlap and
     # a given box moved out of the scene, refused before the store is written
+    C("remove-huge-turns", "remove {scene} --box mug.json --out v --views.turns 100000", 2, "--views.turns must be <= 16, got 100000", MUG),
     C("move-translate-two", "move {scene} --box mug.json --translate 0.1 0 --out v", 2, "error: --translate takes 3 values, got 2 ", MUG),
     C("move-translate-word", "move {scene} --box mug.json --translate 0.1 a 0 --out v", 2, "error: --translate takes 3 numbers ", MUG),
     C("move-json-in-out", "move {scene} --box mug.json --translate 0.02 0 0 --out v --json v/r.json", 2, "is inside the output v", MUG),

@@ -197,6 +197,7 @@ def test_a_batch_step_of_a_plan_is_one_version(move_scene: Path, objects, tmp_pa
         ({"type": "remove", "prompt": "a", "edits": [{"type": "remove", "prompt": "b"}]}, "only a batch"),
         ({"type": "batch", "edits": [{"type": "move", "prompt": "a"}]}, "step 1: edits.0: .*needs a motion"),
         ({"type": "batch", "edits": [{"type": "grasp", "prompt": "a"}]}, "edits.0.type: .*'move' or 'remove'$"),
+        ({"type": "move", "prompt": "a", "translate": [0.1, 0, 0]}, "translate: unknown key \\(did you mean 'translate_m'"),
     ],
 )  # fmt: skip
 def test_a_malformed_batch_step_is_refused_with_its_step(step: dict, message: str):

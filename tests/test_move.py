@@ -628,6 +628,7 @@ def test_the_python_facade_applies_several_edits_as_one_version(move_scene: Path
     assert len(s2.scene.meta.edits) == len(s.scene.meta.edits) + 1
     record = s2.scene.meta.edits[-1]
     assert record.type == "batch" and [p.type for p in record.parts()] == ["remove", "move"]
+    assert repr(s2).startswith("EditableScene(version=") and len(repr(s2)) < 300
     assert s2.scene.meta.parent == s.scene.meta.version_id
     assert len(s2.scene.meta.cut_boxes) == 1 and len(s2.scene.meta.moves) == 1
     assert not s.scene.meta.cut_boxes and not s.scene.meta.moves  # s is unchanged

@@ -23,6 +23,7 @@ removals in separate places) as one version (:class:`~neoedit.edit.batch.Batch`)
 from __future__ import annotations
 
 import dataclasses
+import difflib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -159,6 +160,13 @@ class Action(BaseModel):
         return f"{self.type} {self.prompt!r}" if self.prompt else f"{self.type} box"
 
 
+def _closest(key: str) -> str:
+    """' (did you mean 'translate_m'?)' for a plan key like a known one ('' otherwise)."""
+    known = list(dict.fromkeys([*Action.model_fields, *MotionSpec.model_fields]))
+    close = difflib.get_close_matches(key, known, 1, 0.6)
+    return f" (did you mean {close[0]!r}?)" if close else f" (known: {', '.join(known)})"
+
+
 def parse_plan(raw: Any, where: str = "plan") -> list[Action]:
     """Validated actions of a plan (a list, or a mapping with ``actions``); one clear
     NeoError naming the step and the problem otherwise."""
@@ -176,6 +184,8 @@ def parse_plan(raw: Any, where: str = "plan") -> list[Action]:
             msg = err["msg"].removeprefix("Value error, ")
             if err["type"] == "literal_error" and err["loc"][:1] == ("edits",):
                 msg = "a batch's edits are of type 'move' or 'remove'"  # not 'batch'
+            if err["type"] == "extra_forbidden":
+                msg = f"unknown key{_closest(str(err['loc'][-1]))}"
             raise NeoError(f"{where}: step {i}: {loc + ': ' if loc else ''}{msg}") from None
     return actions
 

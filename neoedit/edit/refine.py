@@ -54,7 +54,7 @@ from neoedit.utils.timings import Timings
 class RefineConfig:
     steps: int = at_least_one(120)
     """Training steps of the patch."""
-    rounds: int = at_least_one(3)
+    rounds: int = at_least_one(3, most=20)
     """Progressive refinement rounds (re-render + re-inpaint at the start of each)."""
     strength: float = 1.0
     """Inpainting strength xi of the first round."""

@@ -22,7 +22,7 @@ from neoedit.utils.options import at_least_one
 
 @dataclass
 class VirtualViewConfig:
-    turns: int = at_least_one(2)
+    turns: int = at_least_one(2, most=16)
     """Turns of the spiral; each turn has 4 views at opposing azimuths."""
     elevation_min_deg: float = 25.0
     elevation_max_deg: float = 60.0

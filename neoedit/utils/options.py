@@ -118,9 +118,15 @@ def at_least(minimum: int, default: Any = None) -> Any:
     return dataclasses.field(default=default, metadata={"min": minimum})
 
 
-def at_least_one(default: int) -> Any:
-    """A count option that means nothing below 1 (``views: int = at_least_one(3)``)."""
-    return at_least(1, default)
+def at_least_one(default: int, most: int | None = None) -> Any:
+    """A count option that means nothing below 1 (``views: int = at_least_one(3)``), and
+    with ``most`` nothing sensible above it (a typo of 100000 turns would run for hours)."""
+    field = at_least(1, default)
+    return (
+        field
+        if most is None
+        else dataclasses.field(default=default, metadata={"min": 1, "max": most})
+    )
 
 
 def _check_number(name: str, value: Any, f: dataclasses.Field, where: str) -> None:
@@ -141,6 +147,8 @@ def _check_number(name: str, value: Any, f: dataclasses.Field, where: str) -> No
         return
     if "min" in f.metadata and value < f.metadata["min"]:
         raise NeoError(f"{where} must be >= {f.metadata['min']}, got {value}")
+    if "max" in f.metadata and value > f.metadata["max"]:
+        raise NeoError(f"{where} must be <= {f.metadata['max']}, got {value}")
     check_bound(name, value, where)
     if name in POSITIVE and value <= 0:
         raise NeoError(f"{where} must be > 0, got {value}")
