@@ -6,7 +6,7 @@
     s2 = s.remove("red mug")                          # a new version; s is unchanged
     s3 = s2.move("duck", translate=(0.1, 0.0, 0.0))
     rgb = s3.render()                                 # (H, W, 3) uint8, a scan camera
-    s4 = s3.batch().remove("ball").move("mug", translate=(0.02, 0, 0)).apply()  # one version
+    s4 = s.batch().remove("ball").move("mug", translate=(0.02, 0, 0)).apply()  # one version
     neo.save(s4, "outputs/demo/moved")
 
 Each call is the library function the ``neo`` verbs use (:func:`neoedit.edit.remove.remove`,

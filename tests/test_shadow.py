@@ -201,3 +201,25 @@ def test_a_footprint_darker_than_its_ring_is_measured_and_a_seamless_one_is_not(
     hole = _contrast(Hole(wide))
     assert hole.footprint_opacity < 0.01 and hole.ring_opacity > 0.99
     assert hole.footprint_rgb == [0.0, 0.0, 0.0] and hole.delta > 150
+
+
+def test_a_footprint_ring_leaves_out_what_lies_under_excluded_boxes():
+    """A move's footprint is measured without the ring points under its target (the moved
+    object would count as 'the support around it'); a ring all under them is refused."""
+    black, render = torch.zeros(3), RenderConfig(n_coarse_samples=256, n_samples=64)
+
+    def disc(x, y):  # the footprint's stain, as in the test above
+        return (x**2 + y**2) < 0.035**2
+
+    def measure(field: Table, exclude=()) -> float:
+        cams = _ring_of_cameras()
+        return footprint_contrast(field, None, black, render, cams, OBJECT, exclude=exclude).delta
+
+    # most of the ring dark (a moved object standing beside its old place, seen as support)
+    crowded = Table(lambda x, y: disc(x, y) | (x > -0.02))
+    target = OrientedBox((0.09, 0.0, 0.05), (0.22, 0.4, 0.1), 0.0)  # over that part
+    assert measure(crowded) < 10.0  # the stain hidden: the "ring" is as dark as it
+    assert measure(crowded, [target]) == pytest.approx(measure(Table(disc)), abs=2.0)
+    everywhere = OrientedBox((0.0, 0.0, 0.05), (1.0, 1.0, 0.1), 0.0)
+    with pytest.raises(NeoError, match="ring around the footprint lies under"):
+        measure(Table(disc), [everywhere])

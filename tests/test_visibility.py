@@ -130,3 +130,19 @@ def test_grow_mask_is_a_disc_dilation():
         d = np.sqrt((yy[..., None] - ys) ** 2 + (xx[..., None] - xs) ** 2).min(-1)
         np.testing.assert_array_equal(grown, d <= radius)
     assert not grow_mask(np.zeros((5, 5), bool), 3.0).any()
+
+
+def test_surface_level_finds_the_top_surface_and_is_never_nan():
+    """The level of a table among fog above it, of a coaster's rim over the table (the
+    higher crowded surface: seating a box there never cuts into the coaster), and a finite
+    level when the crowded band's centre holds no point."""
+    from neoedit.geometry.levels import surface_level
+
+    rng = np.random.default_rng(0)
+    table = rng.normal(0.0, 0.001, 400)
+    fog = rng.uniform(0.003, 0.02, 150)
+    assert surface_level(np.r_[table, fog]) == pytest.approx(0.0, abs=0.0015)
+    coaster = rng.normal(0.008, 0.001, 300)
+    assert surface_level(np.r_[table, coaster]) == pytest.approx(0.008, abs=0.0015)
+    split = np.r_[np.zeros(5), np.full(5, 0.009)]  # one 9 mm bin, nothing near its median
+    assert np.isfinite(surface_level(split))

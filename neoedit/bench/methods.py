@@ -305,15 +305,16 @@ def _run_action(
             if inp.keep is not None:
                 save_scene(inp.keep, scene)
     row.update(evaluate(scene, post, "test", [source], targets, max_views=inp.eval_views))
-    row["footprint_delta"] = _footprint(scene, source)
+    row["footprint_delta"] = _footprint(scene, source, targets)
     return row, render_view(scene, post)
 
 
-def _footprint(scene: Scene, box: OrientedBox) -> float | None:
+def _footprint(scene: Scene, box: OrientedBox, targets: list[OrientedBox]) -> float | None:
     """How far the support where the object stood differs in colour from the ring around
-    it, as the scene's scan cameras see it (largest channel, 0-255; None when none does)."""
+    it, as the scene's scan cameras see it (largest channel, 0-255; the ring left out under
+    a move's target; None when no camera sees it)."""
     try:
-        return removal_footprint(scene, box).delta
+        return removal_footprint(scene, box, exclude=targets).delta
     except NeoError:
         return None
 

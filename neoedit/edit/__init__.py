@@ -5,14 +5,15 @@ pipeline, :func:`apply_edit` (:mod:`neoedit.edit.pipeline`)::
 
     no_mug = apply_edit(scene, Remove([mug_box]))
     moved = apply_edit(scene, Move([Motion(mug_box, transform)]))
-    both = apply_edit(scene, Batch([Remove([duck_box]), Move([Motion(mug_box, transform)])]))
+    both = apply_edit(scene, Batch([Remove([duck]), Move([Motion(mug_box, transform)])]))
     at_once = sketch(scene, PreviewMove([Motion(mug_box, transform)]))
 
 The edits: :class:`Remove` (NEO's removal and inpainting, or the instant preview),
 :class:`Move` (NEO's distillation), :class:`PreviewMove` (the move composed at render
-time) and :class:`Batch` (several edits in separate places as one version); the baselines are edits of their own
-beside the benchmark: ``neoedit.bench.seal3d.SealMove`` / ``SealRemove`` (Seal-3D-style)
-and ``neoedit.bench.nerfiller.NerfillerRemove`` (NeRFiller-style). Exports load lazily
+time) and :class:`Batch` (several edits in separate places as one version); the
+baselines are edits of their own beside the benchmark: ``neoedit.bench.seal3d.SealMove`` /
+``SealRemove`` (Seal-3D-style) and ``neoedit.bench.nerfiller.NerfillerRemove``
+(NeRFiller-style). Exports load lazily
 (the modules import torch).
 """
 

@@ -34,7 +34,6 @@ from neoedit.edit.inpaint import Inpainter, inpaint_views
 from neoedit.edit.points import original_box_rays, support_points
 from neoedit.edit.removal_loss import RemovalLoss
 from neoedit.edit.visibility import seen_by_cameras
-from neoedit.errors import NeoError
 from neoedit.fields.patched import edit_region
 from neoedit.fields.radiance import Field
 from neoedit.fields.suppressed import with_removals
@@ -45,7 +44,7 @@ from neoedit.rendering.renderer import render_chunked
 from neoedit.scene import Scene
 from neoedit.utils.fit import fit
 from neoedit.utils.optim import field_param_groups, make_adam
-from neoedit.utils.options import at_least_one, spelt
+from neoedit.utils.options import at_least_one, check_options, option_path
 from neoedit.utils.progress import make_progress
 from neoedit.utils.timings import Timings
 
@@ -119,17 +118,11 @@ class RefineConfig:
     seed: int = 0
 
     def check(self, where: str = "") -> None:
-        """Refuse settings the training cannot run with (before any work starts); ``where``:
-        the options' prefix on the command line ('': none)."""
-        for name in (
-            "steps",
-            "span_samples",
-            "virtual_rays",
-            "rounds",
-            "scan_views",
-        ):
-            if getattr(self, name) < 1:
-                raise NeoError(f"{spelt(where, name)} must be at least 1")
+        """Refuse settings the training cannot run with (before any work starts), by the
+        one range check the command line runs (:func:`~neoedit.utils.options.check_options`:
+        counts at least 1, rounds at most 20, ...); ``where``: the options' prefix on the
+        command line ('': none)."""
+        check_options(self, option_path(where))
 
 
 def crop_window(masks: list[np.ndarray], margin_px: int) -> tuple[slice, slice]:

@@ -103,7 +103,7 @@ class PreviewMove:
         move = MoveRegions.of(self.motions, sources, cfg.target_floor_m)
         record = move.record(self.prompt, "preview", self.motions, [], cfg)
         record.details["shade_boxes"] = []
-        _check_clear_of_cuts(parent, [m.box for m in self.motions], "the object's box")
+        _check_clear_of_cuts(parent, sources, "the object's box")
         _check_clear_of_cuts(parent, move.targets, "the target box")
 
         def run(child: Scene, timings: Timings) -> None:
@@ -130,10 +130,13 @@ target's floor, the language update); it trains nothing, so the rest does not ap
 
 
 def preview_ignored(cfg: MoveConfig) -> list[str]:
-    """The options of ``cfg`` set away from their defaults that a preview does not use
-    (dotted names, e.g. 'distill.field_steps')."""
+    """The options of ``cfg`` set away from their defaults that a preview does not use, as
+    dotted names the way they are set ('distill.field_steps'; 'no_carry' for an on/off
+    option turned off)."""
     return [
         name
+        if value is not False
+        else f"{name.rpartition('.')[0]}.no_{name.rpartition('.')[2]}".lstrip(".")
         for name, value, default in _leaves(cfg, MoveConfig())
         if value != default and not any(name == u or name.startswith(u + ".") for u in PREVIEW_USES)
     ]

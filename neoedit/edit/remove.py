@@ -35,11 +35,12 @@ from neoedit.edit.views import VirtualViewConfig, concat_cameras, virtual_camera
 from neoedit.errors import NeoError
 from neoedit.fields.patched import edit_region
 from neoedit.geometry import OrientedBox
+from neoedit.geometry.levels import surface_level
 from neoedit.records import EditRecord
 from neoedit.rendering.occupancy import cells_in_boxes, refresh_grid
 from neoedit.scene import Scene, load_scene, save_scene
 from neoedit.utils.io import write_png
-from neoedit.utils.options import spelt
+from neoedit.utils.options import check_options, option_path, spelt
 from neoedit.viz.contact_sheet import tile_images
 from neoedit.viz.zoom import before_after, edited_boxes, report_views
 
@@ -91,10 +92,9 @@ class RemoveConfig:
                 f"{spelt(where, 'removal')} {self.removal!r} is unknown (choose from "
                 f"{', '.join(REMOVAL_MODES)})"
             )
+        check_options(self.views, option_path(spelt(where, "views")))
         self.refine.check(spelt(where, "refine"))
         self.shadow.check(spelt(where, "shadow"))
-        if self.views.turns < 1:
-            raise NeoError(f"{spelt(spelt(where, 'views'), 'turns')} must be at least 1")
 
 
 @dataclass
@@ -247,8 +247,9 @@ def seated_on_support(scene: Scene, box: OrientedBox, ring_m: float = 0.03) -> O
     raised when it reaches below (a query box can end a few mm under the table top; cutting
     that would open a hole in the table), lowered when it stops short (the object's base
     would stay behind: a ball's lower cap, left as a pale disc on the table). The support is
-    the median height of the surface points in a ring around the box's footprint near its
-    bottom; the box is returned unchanged without such points."""
+    the surface level (:func:`~neoedit.geometry.levels.surface_level`) of the surface points
+    in a ring around the box's footprint near its bottom; the box is returned unchanged
+    without such points."""
     if scene.surface_points_m is None:
         return box
     pts = scene.surface_points_m.cpu().numpy().astype(np.float64)
@@ -260,7 +261,7 @@ def seated_on_support(scene: Scene, box: OrientedBox, ring_m: float = 0.03) -> O
     ring = outside & near & low
     if int(ring.sum()) < 20:
         return box
-    support = float(np.median(pts[ring, 2]))
+    support = surface_level(pts[ring, 2])  # a coaster's rim over the table: its top
     top = box.center_m[2] + box.size_m[2] / 2
     return box if support >= top - 0.005 else box.with_bottom(support)
 

@@ -119,10 +119,15 @@ def footprint_contrast(
     inner: float = 0.8,
     ring: tuple[float, float] = (1.0, 1.5),
     cell_m: float = 0.004,
+    exclude: Sequence[OrientedBox] = (),
 ) -> FootprintContrast:
     """The footprint of ``box`` against the ring around it, seen from ``views`` of
-    ``cameras`` (those that have the footprint in their image)."""
+    ``cameras`` (those that have the footprint in their image); ring points under any of
+    ``exclude`` are left out (a moved object's new place, near its old one)."""
     foot, around = support_points(box, inner, ring, cell_m)
+    around = around[~_under_any(around, exclude)]
+    if not len(around):
+        raise NeoError("the ring around the footprint lies under the excluded boxes")
     bottom_centre = np.asarray(box.center_m) - [0.0, 0.0, box.size_m[2] / 2]
     chosen = facing_views(cameras, bottom_centre, views)
     if not chosen:
@@ -148,10 +153,22 @@ def footprint_contrast(
     )
 
 
-def removal_footprint(scene: Scene, box: OrientedBox, views: int = 8) -> FootprintContrast:
+def removal_footprint(
+    scene: Scene, box: OrientedBox, views: int = 8, exclude: Sequence[OrientedBox] = ()
+) -> FootprintContrast:
     """:func:`footprint_contrast` of ``scene`` as it renders, seen from its scan's cameras."""
     field, cut = scene.renderable()
     cameras = scene.scan_cameras()[0]
     return footprint_contrast(
-        field, scene.grid, scene.background, scene.meta.render, cameras, box, cut, views
-    )
+        field, scene.grid, scene.background, scene.meta.render, cameras, box, cut, views,
+        exclude=exclude,
+    )  # fmt: skip
+
+
+def _under_any(points: np.ndarray, boxes: Sequence[OrientedBox]) -> np.ndarray:
+    """(N,) bool: the points (N,3) whose x, y lie within the footprint of any of ``boxes``."""
+    under = np.zeros(len(points), bool)
+    for b in boxes:
+        local = b.world_to_local(points)
+        under |= (np.abs(local[:, :2]) <= b.half_extents[:2]).all(1)
+    return under

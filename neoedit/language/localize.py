@@ -24,6 +24,7 @@ from neoedit.cameras.cameras import Cameras
 from neoedit.errors import NeoError
 from neoedit.geometry.box import OrientedBox
 from neoedit.geometry.clusters import core_clusters
+from neoedit.geometry.levels import LEVEL_BIN_M, surface_level
 from neoedit.geometry.plane import fit_plane
 from neoedit.language.relevancy import CANONICAL_PHRASES, relevancy
 from neoedit.language.text import TextEncoder
@@ -215,16 +216,17 @@ def voxel_thin(points: np.ndarray, voxel_m: float) -> np.ndarray:
     return np.sort(first)
 
 
-SUPPORT_BIN_M = 0.005
+SUPPORT_BIN_M = LEVEL_BIN_M
 """Height bins in which the surface under a found object is looked for."""
 
 
 def support_height(
     points: np.ndarray, cluster: np.ndarray, box: OrientedBox, cfg: QueryConfig
 ) -> float | None:
-    """z of the surface the cluster stands on: the top of the highest height band where the
-    other points around its footprint below it crowd (a horizontal surface), or None if there are too few (the cluster already reaches
-    down to its support, or nothing is seen around it)."""
+    """z of the surface the cluster stands on: the densest height of the highest band where
+    the points in a ring around its footprint, below it, crowd (:func:`surface_level`; the
+    points under the footprint too when the ring holds fewer than 10), or None if there are
+    too few (the cluster already reaches down to its support, or nothing is seen around it)."""
     z0 = float(cluster[:, 2].min())
 
     def grown(m: float) -> OrientedBox:
@@ -246,15 +248,7 @@ def support_height(
         return None
     # a support is a horizontal surface: the height where the points below crowd (the
     # object's own sides, under a cluster that holds only its top, spread over theirs)
-    heights = points[near, 2]
-    counts, edges = np.histogram(heights, bins=max(int(np.ptp(heights) / SUPPORT_BIN_M), 1))
-    k = int(np.nonzero(counts >= 0.5 * counts.max())[0][-1])  # the highest crowded bin
-    # where that band is densest: the median of the points within half a bin, moved until
-    # it settles (a window over its neighbours took in the fog above a table: 9 mm high)
-    z = float(np.median(heights[(heights >= edges[k]) & (heights <= edges[k + 1])]))
-    for _ in range(4):
-        z = float(np.median(heights[np.abs(heights - z) <= 0.5 * SUPPORT_BIN_M]))
-    return z
+    return surface_level(points[near, 2], SUPPORT_BIN_M)
 
 
 def localize(

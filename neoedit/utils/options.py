@@ -87,6 +87,12 @@ its own range, in degrees, checked by its command with a message that says so.)"
 _UNIT = re.compile(r"(fraction|quantile|share|decay|opacity|focus|similarity)$")
 
 
+def option_path(where: str) -> tuple[str, ...]:
+    """A command-line prefix as :func:`check_options`' path: '--edit.remove' ->
+    ('edit', 'remove'); '' -> ()."""
+    return tuple(where.removeprefix("--").replace("-", "_").split(".")) if where else ()
+
+
 def flag(path: tuple[str, ...]) -> str:
     """The command-line spelling of a nested option: ('edit', 'distill', 'lr') ->
     '--edit.distill.lr'."""
