@@ -292,6 +292,7 @@ CASES = [
     C("move-translate-two", "move {scene} --box mug.json --translate 0.1 0 --out v", 2, "error: --translate takes 3 values, got 2 ", MUG),
     C("move-translate-word", "move {scene} --box mug.json --translate 0.1 a 0 --out v", 2, "error: --translate takes 3 numbers ", MUG),
     C("move-json-in-out", "move {scene} --box mug.json --translate 0.02 0 0 --out v --json v/r.json", 2, "is inside the output v", MUG),
+    C("plan-preview-ignored", "plan {scene} p.json --out st --preview --edit.remove.refine.steps 5", 2, "a preview's removals are cuts: --edit.remove.refine.steps would be ignored", write("p.json", [{"type": "remove", "box": BOX_MUG}])),
     C("move-preview-ignored", "move {scene} --box mug.json --translate 0.02 0 0 --out v --preview --edit.student field", 2, "a preview trains nothing: --edit.student would be ignored", MUG),
     C("move-nested-preview", "move {scene} --box mug.json --translate 0.02 0 0 --out v --edit.preview", 2, "neo move has no --edit.preview", MUG),
     C("plan-nested-preview", "plan {scene} p.json --out st --edit.move.preview", 2, "Unrecognized options: --edit.move.preview", write("p.json", [{"type": "move", "box": BOX_MUG, "translate_m": [0.02, 0, 0]}])),

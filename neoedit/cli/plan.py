@@ -22,9 +22,10 @@ from neoedit.cli.edit import (
     report_writer,
 )
 from neoedit.edit.plan import FindBoxes, PlanConfig
+from neoedit.edit.remove import RemoveConfig
 from neoedit.errors import NeoError
 from neoedit.language.localize import QueryConfig
-from neoedit.utils.options import at_least_one
+from neoedit.utils.options import at_least_one, changed_options, spelt
 
 if TYPE_CHECKING:
     from neoedit.scene import Scene
@@ -75,6 +76,13 @@ class PlanCommand:
         if self.edit.preview:
             raise NeoError("--edit.preview is set by --preview: write --preview")
         self.edit.remove.check("--edit.remove")
+        cut_uses = ("removal", "margin_m", "neighbour_similarity")  # a preview's removals cut
+        ignored = (
+            changed_options(self.edit.remove, RemoveConfig(), cut_uses) if self.preview else []
+        )
+        if ignored:
+            flags = ", ".join(spelt("--edit.remove", n.replace("_", "-")) for n in ignored)
+            raise NeoError(f"a preview's removals are cuts: {flags} would be ignored")
         from neoedit.edit.plan import apply_action, check_plan, load_plan, plan_boxes
         from neoedit.scene import load_scene, save_scene
         from neoedit.storage import SceneStore

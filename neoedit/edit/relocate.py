@@ -19,7 +19,6 @@ The output has the structure of its input (one radiance field + language field),
 a valid input to every verb, another move included.
 """
 
-import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -36,6 +35,7 @@ from neoedit.geometry import OrientedBox
 from neoedit.geometry.box import box_iou_3d
 from neoedit.rendering.occupancy import cells_in_boxes, refresh_grid
 from neoedit.scene import Scene
+from neoedit.utils.options import changed_options
 
 __all__ = [
     "Motion",
@@ -130,26 +130,9 @@ target's floor, the language update); it trains nothing, so the rest does not ap
 
 
 def preview_ignored(cfg: MoveConfig) -> list[str]:
-    """The options of ``cfg`` set away from their defaults that a preview does not use, as
-    dotted names the way they are set ('distill.field_steps'; 'no_carry' for an on/off
-    option turned off)."""
-    return [
-        name
-        if value is not False
-        else f"{name.rpartition('.')[0]}.no_{name.rpartition('.')[2]}".lstrip(".")
-        for name, value, default in _leaves(cfg, MoveConfig())
-        if value != default and not any(name == u or name.startswith(u + ".") for u in PREVIEW_USES)
-    ]
-
-
-def _leaves(cfg, default, prefix: str = ""):
-    """(dotted name, value, default) of every non-dataclass option of ``cfg``."""
-    for f in dataclasses.fields(cfg):
-        value, ref = getattr(cfg, f.name), getattr(default, f.name)
-        if dataclasses.is_dataclass(value) and not isinstance(value, type):
-            yield from _leaves(value, ref, f"{prefix}{f.name}.")
-        else:
-            yield f"{prefix}{f.name}", value, ref
+    """The options of ``cfg`` set away from their defaults that a preview does not use
+    (:func:`~neoedit.utils.options.changed_options`: 'distill.field_steps', 'no_carry')."""
+    return changed_options(cfg, MoveConfig(), PREVIEW_USES)
 
 
 def check_move_config(cfg: MoveConfig, where: str = "--edit") -> None:

@@ -15,6 +15,7 @@ import dataclasses
 import math
 import re
 import typing
+from collections.abc import Sequence
 from typing import Any
 
 from neoedit.errors import NeoError
@@ -85,6 +86,29 @@ something, well inside float32 (the field's tensors), where 1e300 overflowed. (A
 its own range, in degrees, checked by its command with a message that says so.)"""
 
 _UNIT = re.compile(r"(fraction|quantile|share|decay|opacity|focus|similarity)$")
+
+
+def changed_options(cfg: Any, default: Any, used: Sequence[str] = ()) -> list[str]:
+    """The options of config ``cfg`` set away from ``default`` (the same dataclass) that are
+    not under a dotted name in ``used``, spelt as set: 'distill.field_steps', 'no_carry'
+    for an on/off option turned off (what a command refuses when it would ignore them)."""
+    names = []
+    for name, value, ref in _leaves(cfg, default):
+        if value == ref or any(name == u or name.startswith(u + ".") for u in used):
+            continue
+        head, _, last = name.rpartition(".")
+        names.append(f"{head}.no_{last}".lstrip(".") if value is False else name)
+    return names
+
+
+def _leaves(cfg: Any, default: Any, prefix: str = ""):
+    """(dotted name, value, default) of every option of a nested config dataclass."""
+    for f in dataclasses.fields(cfg):
+        value, ref = getattr(cfg, f.name), getattr(default, f.name)
+        if dataclasses.is_dataclass(value) and not isinstance(value, type):
+            yield from _leaves(value, ref, f"{prefix}{f.name}.")
+        else:
+            yield f"{prefix}{f.name}", value, ref
 
 
 def option_path(where: str) -> tuple[str, ...]:
