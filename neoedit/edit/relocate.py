@@ -62,9 +62,7 @@ class Move:
 
     def prepare(self, parent: Scene) -> Prepared:
         cfg = self.cfg
-        check_move_config(cfg)
-        check_motions(parent, self.motions)
-        sources = working_boxes(parent, [m.box for m in self.motions], cfg.remove)
+        sources = _checked_sources(parent, self.motions, cfg)
         found = scene_shadows(parent, sources, cfg.remove.shadow)  # inpainted with the source
         shadows = [s.slab for s in found if s is not None]
         move = MoveRegions.of(self.motions, sources, cfg.target_floor_m)
@@ -97,9 +95,7 @@ class PreviewMove:
 
     def prepare(self, parent: Scene) -> Prepared:
         cfg = self.cfg
-        check_move_config(cfg)
-        check_motions(parent, self.motions)
-        sources = working_boxes(parent, [m.box for m in self.motions], cfg.remove)
+        sources = _checked_sources(parent, self.motions, cfg)
         move = MoveRegions.of(self.motions, sources, cfg.target_floor_m)
         record = move.record(self.prompt, "preview", self.motions, [], cfg)
         record.details["shade_boxes"] = []
@@ -111,6 +107,14 @@ class PreviewMove:
                 _preview(child, sources, move.targets, move.transforms)
 
         return Prepared(record, run, move.language(), cfg.language, instant=True)
+
+
+def _checked_sources(parent: Scene, motions: list[Motion], cfg: MoveConfig) -> list[OrientedBox]:
+    """The checks every move runs before any work, then its sources: the objects' boxes as
+    the removal works on them (seated, grown by the margin)."""
+    check_move_config(cfg)
+    check_motions(parent, motions)
+    return working_boxes(parent, [m.box for m in motions], cfg.remove)
 
 
 def _shades(

@@ -170,5 +170,5 @@ def _under_any(points: np.ndarray, boxes: Sequence[OrientedBox]) -> np.ndarray:
     under = np.zeros(len(points), bool)
     for b in boxes:
         local = b.world_to_local(points)
-        under |= (np.abs(local[:, :2]) <= b.half_extents[:2]).all(1)
+        under |= footprint_distance(local[:, 0], local[:, 1], b) == 0.0
     return under

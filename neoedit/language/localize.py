@@ -24,7 +24,7 @@ from neoedit.cameras.cameras import Cameras
 from neoedit.errors import NeoError
 from neoedit.geometry.box import OrientedBox
 from neoedit.geometry.clusters import core_clusters
-from neoedit.geometry.levels import LEVEL_BIN_M, surface_level
+from neoedit.geometry.levels import surface_level
 from neoedit.geometry.plane import fit_plane
 from neoedit.language.relevancy import CANONICAL_PHRASES, relevancy
 from neoedit.language.text import TextEncoder
@@ -216,10 +216,6 @@ def voxel_thin(points: np.ndarray, voxel_m: float) -> np.ndarray:
     return np.sort(first)
 
 
-SUPPORT_BIN_M = LEVEL_BIN_M
-"""Height bins in which the surface under a found object is looked for."""
-
-
 def support_height(
     points: np.ndarray, cluster: np.ndarray, box: OrientedBox, cfg: QueryConfig
 ) -> float | None:
@@ -248,7 +244,7 @@ def support_height(
         return None
     # a support is a horizontal surface: the height where the points below crowd (the
     # object's own sides, under a cluster that holds only its top, spread over theirs)
-    return surface_level(points[near, 2], SUPPORT_BIN_M)
+    return surface_level(points[near, 2])
 
 
 def localize(
