@@ -16,7 +16,7 @@ from neoedit.cameras import Cameras
 from neoedit.cli import main
 from neoedit.data import load_scene_data
 from neoedit.edit.inpaint import OpenCVInpainter, inpaint_views, make_inpainter, split_2x2, tile_2x2
-from neoedit.edit.views import VirtualViewConfig, virtual_cameras
+from neoedit.edit.views import VirtualViewConfig, view_scale, virtual_cameras, virtual_views
 from neoedit.errors import NeoError
 from neoedit.fields.suppressed import SuppressedField
 from neoedit.geometry import OrientedBox
@@ -39,7 +39,8 @@ REFERENCE = Cameras.shared(np.eye(4)[None].repeat(1, 0), 60.0, 60.0, 40.0, 30.0,
 )
 def test_projected_box_mask_matches_per_pixel_ray_test(cx, cy, sx, sy, sz, yaw, radius):
     box = OrientedBox((cx, cy, sz / 2), (sx, sy, sz), yaw)
-    cams = virtual_cameras(box, REFERENCE, VirtualViewConfig(radius_m=radius, image_scale=1.0))
+    cfg = VirtualViewConfig(radius_m=radius, image_scale=1.0, min_box_px=0)
+    cams = virtual_cameras(box, REFERENCE, cfg)
     # plus an off-centre camera that sees the box at an image border
     moved = cams.camera_to_world.copy()
     moved[0, :3, 3] += np.array([0.15, -0.1, 0.05])
@@ -56,10 +57,28 @@ def test_projected_box_mask_matches_per_pixel_ray_test(cx, cy, sx, sy, sz, yaw, 
         assert not (differ & ~boundary).any() and differ.sum() <= 2
 
 
+def test_a_small_box_gets_finer_virtual_views_and_every_box_one_resolution():
+    cfg = VirtualViewConfig(radius_m=0.8, min_box_px=24)  # half the scan's scale, 24 px at least
+    big = OrientedBox((0.0, 0.0, 0.2), (0.8, 0.6, 0.4), 0)  # 60 px wide at the scan's scale
+    small = OrientedBox((0.3, 0.1, 0.05), (0.1, 0.06, 0.08), 20)  # 7.5 px wide
+    assert view_scale([big], REFERENCE, cfg) == 0.5
+    assert view_scale([small], REFERENCE, cfg) == pytest.approx(24 / 7.5)
+    assert view_scale([big, small], REFERENCE, cfg) == pytest.approx(24 / 7.5)
+    grain = OrientedBox((0.0, 0.0, 0.0005), (0.001, 0.001, 0.001), 0)
+    assert view_scale([grain], REFERENCE, cfg) == cfg.max_scale
+    off = VirtualViewConfig(radius_m=0.8, min_box_px=0)
+    assert view_scale([small], REFERENCE, off) == 0.5
+    cams = virtual_views([big, small], REFERENCE, cfg)
+    assert len(cams) == 16 and set(cams.width) == {256} and set(cams.height) == {192}
+    for i in range(8, 16):  # the small box's views: its silhouette spans at least 24 px
+        rows, cols = np.nonzero(project_box_mask(cams, i, small))
+        assert np.hypot(np.ptp(rows) + 1, np.ptp(cols) + 1) >= 24
+
+
 def test_virtual_views_look_at_the_box_on_a_rising_spiral():
     box = OrientedBox((0.2, -0.1, 0.05), (0.1, 0.08, 0.1), 30)
     cams = virtual_cameras(
-        box, REFERENCE, VirtualViewConfig(turns=2, radius_m=0.8, image_scale=1.0)
+        box, REFERENCE, VirtualViewConfig(turns=2, radius_m=0.8, image_scale=1.0, min_box_px=0)
     )
     assert len(cams) == 8
     eyes = cams.camera_to_world[:, :3, 3]

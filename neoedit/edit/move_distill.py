@@ -28,7 +28,7 @@ from neoedit.edit.relight import (
     turn_deg,
 )
 from neoedit.edit.remove import inpaint_removal
-from neoedit.edit.views import VirtualViewConfig, concat_cameras, virtual_cameras
+from neoedit.edit.views import VirtualViewConfig, virtual_views
 from neoedit.fields.composed import ComposedField, MaskedField, TransformedField
 from neoedit.fields.patched import PatchedField, edit_region
 from neoedit.fields.radiance import Field, RadianceField
@@ -162,7 +162,7 @@ def scan_ray_pool(
     virtual = None
     if virtual_around:
         views = views or VirtualViewConfig()
-        virtual = concat_cameras([virtual_cameras(b, scan, views) for b in virtual_around])
+        virtual = virtual_views(virtual_around, scan, views)
     return RayPool(scan, virtual, regions, parent.field.aabb.device, seed)
 
 

@@ -47,6 +47,7 @@ POSITIVE = frozenset(
         "eps_m",
         "voxel_m",
         "image_scale",
+        "max_scale",
         "rays",
         "batch",
         "rays_per_batch",
