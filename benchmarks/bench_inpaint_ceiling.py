@@ -54,7 +54,7 @@ def oracle_composites(pre_dir: Path, oracle_dir: Path, box: OrientedBox, cfg: Re
     virtual = virtual_cameras(box, cameras.subset(split["train"]), cfg.views)
     masks = [project_box_mask(virtual, i, work) for i in range(len(virtual))]
     window = crop_window(masks, cfg.refine.crop_margin_px)
-    crops, _ = render_crops(oracle.field, oracle, virtual, window, [])
+    crops, _, _ = render_crops(oracle.field, oracle, virtual, window, [])
     return [tile_2x2(crops[k : k + 4]) for k in range(0, len(crops) - 3, 4)]
 
 

@@ -13,10 +13,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from neoedit.cameras import Cameras
+from neoedit.cameras.cameras import look_at
+from neoedit.cameras.rays import CameraTensors
 from neoedit.cli import main
 from neoedit.data import load_scene_data
 from neoedit.edit.inpaint import OpenCVInpainter, inpaint_views, make_inpainter, split_2x2, tile_2x2
 from neoedit.edit.views import VirtualViewConfig, view_scale, virtual_cameras, virtual_views
+from neoedit.edit.visibility import raised_masks
 from neoedit.errors import NeoError
 from neoedit.fields.suppressed import SuppressedField
 from neoedit.geometry import OrientedBox
@@ -144,6 +147,79 @@ def test_grid_inpainting_matches_per_view_shape_and_keeps_unmasked_pixels():
     assert len(out) == 5
     for o, v, m in zip(out, views, masks, strict=True):
         assert o.shape == v.shape and np.array_equal(o[~m], v[~m])
+
+
+@pytest.mark.parametrize("method", ["telea", "fsr"])
+def test_the_fill_is_drawn_from_the_support_not_from_the_neighbour_beside_the_hole(method):
+    table, duck = np.array([200, 180, 150]), np.array([230, 200, 20])
+    views, masks, avoid = [], [], []
+    for _ in range(4):
+        img = np.tile(table.astype(np.uint8), (40, 48, 1))
+        img[10:30, 30:40] = duck  # a neighbour right beside the hole
+        hole = np.zeros((40, 48), bool)
+        hole[12:28, 14:30] = True
+        views.append(img)
+        masks.append(hole)
+        avoid.append(np.all(img == duck, -1))
+    plain = inpaint_views(OpenCVInpainter(method), views, masks, 1.0)
+    kept = inpaint_views(OpenCVInpainter(method), views, masks, 1.0, avoid=avoid)
+    for p, k, v, m, a in zip(plain, kept, views, masks, avoid, strict=True):
+        near = m.copy()
+        near[:, :26] = False  # the fill's columns next to the neighbour
+        assert np.abs(p[near].astype(int) - table).max() > 20  # yellow bled into the plain fill
+        assert np.abs(k[m].astype(int) - table).max() <= 3  # only the table fills the hole
+        assert np.array_equal(k[~m], v[~m]) and np.array_equal(k[a], v[a])  # neighbour kept
+    # with nothing but the neighbour around the hole, it stays the context
+    crowded = [np.ones((40, 48), bool) & ~m for m in masks]
+    alone = inpaint_views(OpenCVInpainter(method), views, masks, 1.0, avoid=crowded)
+    assert all(np.array_equal(a, p) for a, p in zip(alone, plain, strict=True))
+
+
+def test_raised_pixels_stand_above_the_support_under_them_in_every_view():
+    # two cameras looking down on two supports: a table (z = 0, x < 0) and a shelf (z = 0.1,
+    # x > 0.2), each with a box on it; between them a plate stands 3 cm over the table
+    cams = Cameras.shared(
+        np.stack([look_at(np.array([0.1, y, 0.8]), np.array([0.1, 0.0, 0.0])) for y in (0.0, 0.3)]),
+        60.0, 60.0, 24.0, 20.0, 48, 40,
+    )  # fmt: skip
+    boxes = [
+        OrientedBox((-0.1, 0.0, 0.05), (0.1, 0.1, 0.1), 0),
+        OrientedBox((0.3, 0.0, 0.15), (0.1, 0.1, 0.1), 0),
+    ]
+    window = (slice(4, 36), slice(6, 42))
+    rows, cols = np.mgrid[4:36, 6:42]
+    depth_z, accumulation, expected = [], [], []
+    for v in range(2):
+        rays = CameraTensors(cams, "cpu").rays(
+            torch.full((rows.size,), v),
+            torch.as_tensor(rows.ravel()),
+            torch.as_tensor(cols.ravel()),
+        )
+        o, d = rays.origins.numpy(), rays.directions.numpy()
+
+        def hit(z, o=o, d=d):
+            return (z - o[:, 2]) / d[:, 2]
+
+        x_table = (o + d * hit(0.0)[:, None])[:, 0]
+        shelf, plate = x_table > 0.2, (x_table > -0.04) & (x_table < 0.06)
+        t = np.where(shelf, hit(0.1), np.where(plate, hit(0.03), hit(0.0)))
+        depth_z.append((t * rays.z_scale.numpy()).reshape(32, 36))
+        acc = np.ones((32, 36))
+        acc[:3] = 0.2  # rays that stop on nothing are never a neighbour
+        accumulation.append(acc)
+        want = plate.reshape(32, 36).copy()
+        want[:3] = False
+        expected.append(want)
+    raised = raised_masks(
+        cams, window, torch.as_tensor(np.stack(depth_z), dtype=torch.float32),
+        torch.as_tensor(np.stack(accumulation), dtype=torch.float32), boxes, 0.01,
+    )  # fmt: skip
+    for r, want in zip(raised, expected, strict=True):
+        assert want.any() and np.array_equal(r, want)  # the shelf is a support, not raised
+    assert not any(
+        m.any()
+        for m in raised_masks(cams, window, torch.zeros(2, 32, 36), torch.ones(2, 32, 36), [], 0.01)
+    )
 
 
 def test_unknown_or_missing_inpainters_error(tmp_path: Path):

@@ -343,7 +343,9 @@ def _update_dataset(
     rendered, depths = [], []
     with timings.stage("render"):
         for f, w in zip(views.frames, views.windows, strict=True):
-            rgb, depth = render_crops(scene.field, scene, trainer.data.cameras.subset([f]), w, [])
+            rgb, depth, _ = render_crops(
+                scene.field, scene, trainer.data.cameras.subset([f]), w, []
+            )
             rendered.append(rgb[0])
             depths.append(depth[0].cpu().numpy())
     with timings.stage("inpaint"):

@@ -157,14 +157,29 @@ def split_2x2(composite: np.ndarray) -> list[np.ndarray]:
     return [composite[:h, :w], composite[:h, w:], composite[h:, :w], composite[h:, w:]]
 
 
+MIN_CONTEXT = 0.1
+"""An image keeps its ``avoid`` pixels as context when leaving them out would leave less than
+this share of its unmasked pixels (nothing else to fill from)."""
+
+
 def inpaint_views(
     inpainter: Inpainter,
     images: list[np.ndarray],
     masks: list[np.ndarray],
     strength: float,
     grid: bool = True,
+    avoid: list[np.ndarray] | None = None,
 ) -> list[np.ndarray]:
-    """Inpaint views in groups of four tiled 2x2 (``grid``), or one by one."""
+    """Inpaint views in groups of four tiled 2x2 (``grid``), or one by one. ``avoid`` (per
+    view (h,w) bool): pixels the fill must not be drawn from (they are hidden from the
+    inpainter with the mask, then put back as they were)."""
+    if avoid is not None:
+        hidden = [_with_avoided(m, a) for m, a in zip(masks, avoid, strict=True)]
+        filled = inpaint_views(inpainter, images, hidden, strength, grid)
+        return [
+            np.where((h & ~m)[..., None], im, f)
+            for im, m, h, f in zip(images, masks, hidden, filled, strict=True)
+        ]
     out: list[np.ndarray] = []
     k = 0
     while k < len(images):
@@ -178,3 +193,11 @@ def inpaint_views(
             out.append(inpainter.inpaint(images[k], masks[k], strength))
             k += 1
     return out
+
+
+def _with_avoided(mask: np.ndarray, avoid: np.ndarray) -> np.ndarray:
+    """``mask`` with the ``avoid`` pixels added, unless that leaves too little context."""
+    if not mask.any():
+        return mask
+    both = mask | avoid
+    return both if (~both).sum() >= MIN_CONTEXT * (~mask).sum() else mask

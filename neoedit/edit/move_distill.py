@@ -162,7 +162,8 @@ def scan_ray_pool(
     virtual = None
     if virtual_around:
         views = views or VirtualViewConfig()
-        virtual = virtual_views(virtual_around, scan, views)
+        # a source of rays, not inpainted: the views' own scale, however small the box
+        virtual = virtual_views(virtual_around, scan, views, views.image_scale)
     return RayPool(scan, virtual, regions, parent.field.aabb.device, seed)
 
 

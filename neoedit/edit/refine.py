@@ -33,7 +33,7 @@ from neoedit.cameras.rays import CameraTensors
 from neoedit.edit.inpaint import Inpainter, inpaint_views
 from neoedit.edit.points import original_box_rays, support_points
 from neoedit.edit.removal_loss import RemovalLoss
-from neoedit.edit.visibility import seen_by_cameras
+from neoedit.edit.visibility import raised_masks, seen_by_cameras
 from neoedit.fields.patched import edit_region
 from neoedit.fields.radiance import Field
 from neoedit.fields.suppressed import with_removals
@@ -93,6 +93,12 @@ class RefineConfig:
     hole_margin_m: float = 0.015
     """Unseen holes are grown by about this much (converted to pixels at the box's distance):
     the ring around an object's foot was seen, but with its contact shadow baked in."""
+    fill_from_support: bool = True
+    """The hidden support is inpainted from the support around it only: what stands higher
+    than ``support_band_m`` over it in a view (a neighbouring object) is hidden from the
+    inpainter, and the holes' growth stops at it (measured on the README demo's plan: a mug
+    nudged away from the duck beside it left a yellow smear of the duck where it stood).
+    False: the whole crop is the inpainter's context."""
     support_band_m: float = 0.01
     """Surface points less than this above a box's bottom, inside its footprint, are always
     inpainted (the table under the object)."""
@@ -144,12 +150,13 @@ def render_crops(
     cameras: Cameras,
     window: tuple[slice, slice],
     boxes: list[OrientedBox],
-) -> tuple[list[np.ndarray], torch.Tensor]:
-    """(h,w,3) uint8 renders of the window of every camera, and their z-depths (V,h,w) [m]."""
+) -> tuple[list[np.ndarray], torch.Tensor, torch.Tensor]:
+    """(h,w,3) uint8 renders of the window of every camera, their z-depths (V,h,w) [m] and
+    accumulations (V,h,w) (the share of each ray a surface stopped)."""
     device = scene.field.aabb.device
     cams = CameraTensors(cameras, device)
     rows, cols = window
-    images, depths = [], []
+    images, depths, accumulations = [], [], []
     for i in range(len(cameras)):
         v, u = torch.meshgrid(
             torch.arange(rows.start, rows.stop, device=device),
@@ -168,7 +175,8 @@ def render_crops(
         img = out["rgb"].reshape(v.shape[0], v.shape[1], 3)
         images.append((img.clamp(0, 1).cpu().numpy() * 255).round().astype(np.uint8))
         depths.append(out["depth_z"].reshape(v.shape))
-    return images, torch.stack(depths)
+        accumulations.append(out["accumulation"].reshape(v.shape))
+    return images, torch.stack(depths), torch.stack(accumulations)
 
 
 def unseen_masks(
@@ -181,12 +189,14 @@ def unseen_masks(
     scan_cameras: Cameras,
     cfg: RefineConfig,
     boxes: list[OrientedBox],
+    raised: list[np.ndarray] | None = None,
 ) -> list[np.ndarray]:
     """The pixels of M_v to inpaint: those whose preview surface point (from ``depth_z``
     (V,h,w)) no scan camera saw, or that lie on the support inside a box's footprint (what
     the field shows there is the object's contact: its shadow, colour bled into the table);
-    per view (h,w) bool, grown by ``cfg.hole_margin_m`` (within M_v). Kept: what was seen
-    above the support (a neighbour inside or behind the box) or beyond the footprint."""
+    per view (h,w) bool, grown by ``cfg.hole_margin_m`` (within M_v, not onto the
+    ``raised`` pixels: a neighbour standing beside the hole). Kept: what was seen above the
+    support (a neighbour inside or behind the box) or beyond the footprint."""
     vcams = CameraTensors(virtual, depth_z.device)
     rays = vcams.rays(pix[:, 0], pix[:, 1] + window[0].start, pix[:, 2] + window[1].start)
     dist = depth_z[pix[:, 0], pix[:, 1], pix[:, 2]] / rays.z_scale
@@ -215,7 +225,10 @@ def unseen_masks(
             continue
         dist_m = float(depth_z[v][torch.as_tensor(m, device=depth_z.device)].median())
         radius_px = float(virtual.fx[v]) * cfg.hole_margin_m / max(dist_m, 1e-3)
-        out.append(grow_mask(h, radius_px) & m)
+        grown = grow_mask(h, radius_px)
+        if raised is not None:
+            grown &= ~raised[v]
+        out.append((grown | h) & m)
     return out
 
 
@@ -298,6 +311,7 @@ def refine_removal(
     per_round = int(np.ceil(cfg.steps / rounds))
     step = 0
     holes = masks
+    avoid: list[np.ndarray] | None = None  # set in round 0: the neighbours, never filled from
     preview_rgb = np.zeros((len(masks), *masks[0].shape, 3), np.uint8)  # set in round 0
     with timings.stage("total"), make_progress() as progress:
         task = progress.add_task("inpaint+train", total=cfg.steps, status="")
@@ -306,20 +320,29 @@ def refine_removal(
             # round 0 renders the removal preview (boxes cut or suppressed), later rounds F~
             preview = k == 0
             with timings.stage("render"):
-                rendered, depth = _render_round(scene, boxes, virtual, window, region, removal, k)
+                rendered, depth, accumulation = _render_round(
+                    scene, boxes, virtual, window, region, removal, k
+                )
             if not preview and loss_step.outside is not None:
                 with timings.stage("outside"):  # the refreshed cells reach a little outside
                     loss_step.march_outside()
             if preview:
                 target_depth.copy_(depth)
                 preview_rgb = np.stack(rendered)
+                raised = (
+                    raised_masks(virtual, window, depth, accumulation, boxes, cfg.support_band_m)
+                    if cfg.fill_from_support
+                    else [np.zeros(m.shape, bool) for m in masks]
+                )
                 if cfg.inpaint_unseen_only and scan_cameras is not None and len(pix):
                     with timings.stage("visibility"):
                         holes = unseen_masks(
-                            scene, virtual, window, pix, depth, masks, scan_cameras, cfg, boxes
-                        )
+                            scene, virtual, window, pix, depth, masks, scan_cameras, cfg, boxes,
+                            raised,
+                        )  # fmt: skip
+                avoid = [r & ~h for r, h in zip(raised, holes, strict=True)]
             with timings.stage("inpaint"):
-                inpainted = inpaint_views(inpainter, rendered, holes, xi, cfg.grid)
+                inpainted = inpaint_views(inpainter, rendered, holes, xi, cfg.grid, avoid)
                 # seen pixels of M_v keep the preview's colour as their target
                 keep = np.stack(holes)[..., None]
                 inpainted = list(np.where(keep, np.stack(inpainted), preview_rgb))
@@ -349,7 +372,7 @@ def _render_round(
     region: list[OrientedBox],
     removal: str,
     k: int,
-) -> tuple[list[np.ndarray], torch.Tensor]:
+) -> tuple[list[np.ndarray], torch.Tensor, torch.Tensor]:
     """Round ``k``'s crops of the virtual views: the removal preview in round 0 (boxes cut
     or suppressed), the edited field after that (its grid refreshed in the region first:
     the fast renders march the grid's occupied cells)."""

@@ -31,7 +31,7 @@ from neoedit.edit.pipeline import Prepared, Timings, apply_edit
 from neoedit.edit.refine import RefineConfig, refine_removal
 from neoedit.edit.settle import settle
 from neoedit.edit.shadow import ShadowConfig, scene_shadows
-from neoedit.edit.views import VirtualViewConfig, virtual_views
+from neoedit.edit.views import VirtualViewConfig, view_scale, virtual_views
 from neoedit.errors import NeoError
 from neoedit.fields.patched import edit_region
 from neoedit.geometry import OrientedBox
@@ -187,7 +187,7 @@ def inpaint_removal(
         virtual = virtual_views(boxes, train_cams, cfg.views)
     else:
         virtual = facing_cameras(train_cams, boxes, 4 * cfg.views.turns).scaled(
-            cfg.views.image_scale
+            view_scale(boxes, train_cams, cfg.views)
         )
 
     def keep_strip(k, rendered, masks, inpainted):

@@ -35,34 +35,38 @@ class VirtualViewConfig:
     """Resolution of the virtual views relative to the scan's (half: 4x fewer rays to render,
     the completed surface is smooth anyway)."""
     min_box_px: float = 18.0
-    """Finer views (up to ``max_scale``) where the box's longest side would span fewer pixels
-    than this: an inpainter given a hole a few pixels wide fills it with the blur of its
+    """Finer views (up to ``max_scale``) where the longer side of the box's footprint (the
+    hole left on the support) would span fewer pixels than this: an inpainter given a hole a few pixels wide fills it with the blur of its
     border. Measured on the README demo's soccer ball (128x96 scan, its box 6 px wide at
     half scale): its footprint came out 20/255 darker than the table around it; 6/255 with
     this (1.5 times the scan's scale), 7/255 with 24 or 32 px. 0: always ``image_scale``."""
     max_scale: float = 4.0
-    """The most :attr:`min_box_px` may raise the views' scale to."""
+    """The most :attr:`min_box_px` may raise the views' scale to, relative to the scan's
+    resolution (like ``image_scale``)."""
 
 
 def virtual_views(
-    boxes: list[OrientedBox], reference: Cameras, cfg: VirtualViewConfig | None = None
+    boxes: list[OrientedBox],
+    reference: Cameras,
+    cfg: VirtualViewConfig | None = None,
+    scale: float | None = None,
 ) -> Cameras:
-    """The :func:`virtual_cameras` around each of ``boxes``, in order, all at one resolution
-    (:func:`view_scale`)."""
+    """The :func:`virtual_cameras` around each of ``boxes``, in order, all at one resolution:
+    ``scale`` (None: :func:`view_scale`)."""
     cfg = cfg or VirtualViewConfig()
-    scale = view_scale(boxes, reference, cfg)
+    scale = view_scale(boxes, reference, cfg) if scale is None else scale
     return Cameras.concat([virtual_cameras(b, reference, cfg, scale) for b in boxes])
 
 
 def view_scale(boxes: list[OrientedBox], reference: Cameras, cfg: VirtualViewConfig) -> float:
     """The virtual views' scale relative to ``reference[0]``: ``cfg.image_scale``, raised
-    (to ``cfg.max_scale`` at most) until the smallest box's longest side spans
-    ``cfg.min_box_px`` pixels at the views' distance."""
+    (to ``cfg.max_scale`` at most) until the longer side of the smallest box's footprint
+    spans ``cfg.min_box_px`` pixels at the views' distance."""
     scale = cfg.image_scale
     if cfg.min_box_px <= 0:
         return scale
     for box in boxes:
-        span_px = float(reference.fx[0]) * float(max(box.size_m)) / _radius(box, reference, cfg)
+        span_px = float(reference.fx[0]) * float(max(box.size_m[:2])) / _radius(box, reference, cfg)
         scale = max(scale, min(cfg.max_scale, cfg.min_box_px / max(span_px, 1e-9)))
     return scale
 

@@ -13,8 +13,11 @@ import numpy as np
 import torch
 
 from neoedit.cameras import Cameras
+from neoedit.cameras.rays import CameraTensors
 from neoedit.fields.radiance import Field
+from neoedit.geometry import OrientedBox
 from neoedit.rendering.occupancy import OccupancyGrid
+from neoedit.rendering.support import footprint_distance
 
 
 @torch.no_grad()
@@ -63,3 +66,46 @@ def seen_by_cameras(
             transmittance = torch.exp(-(sigma.reshape(len(idx), samples) * delta).sum(-1))
             seen[idx] |= transmittance >= min_transmittance
     return seen
+
+
+@torch.no_grad()
+def raised_masks(
+    cameras: Cameras,
+    window: tuple[slice, slice],
+    depth_z: torch.Tensor,
+    accumulation: torch.Tensor,
+    boxes: list[OrientedBox],
+    band_m: float,
+) -> list[np.ndarray]:
+    """Per view (h,w) bool: the pixels of the crop ``window`` of ``cameras`` (z-depths and
+    accumulations (V,h,w) rendered there) that show a surface standing more than ``band_m``
+    above the support, the bottom of the box whose footprint is nearest the point: a
+    neighbour of the removed object, never a source of the support's fill. Rays that stop on
+    no surface (accumulation <= 0.5) are not raised."""
+    if not boxes:
+        return [np.zeros(depth_z.shape[1:], bool) for _ in range(len(depth_z))]
+    vcams = CameraTensors(cameras, depth_z.device)
+    h, w = depth_z.shape[1:]
+    row, col = torch.meshgrid(
+        torch.arange(window[0].start, window[0].start + h, device=depth_z.device),
+        torch.arange(window[1].start, window[1].start + w, device=depth_z.device),
+        indexing="ij",
+    )
+    out = []
+    for v in range(len(depth_z)):
+        rays = vcams.rays(
+            torch.full((h * w,), v, device=depth_z.device), row.reshape(-1), col.reshape(-1)
+        )
+        dist = depth_z[v].reshape(-1) / rays.z_scale
+        points = (rays.origins + rays.directions * dist[:, None]).cpu().numpy().astype(np.float64)
+        solid = accumulation[v].reshape(-1).cpu().numpy() > 0.5
+        out.append((solid & (points[:, 2] > _support_under(points, boxes) + band_m)).reshape(h, w))
+    return out
+
+
+def _support_under(points: np.ndarray, boxes: list[OrientedBox]) -> np.ndarray:
+    """(N,) the height of the support under each point (N,3): the bottom of the box whose
+    footprint is nearest it (boxes may stand on supports at different heights)."""
+    away = np.stack([footprint_distance(*b.world_to_local(points)[:, :2].T, b) for b in boxes], 1)
+    bottoms = np.array([b.center_m[2] - b.size_m[2] / 2 for b in boxes])
+    return bottoms[away.argmin(1)]
