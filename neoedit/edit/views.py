@@ -41,7 +41,7 @@ class VirtualViewConfig:
     half scale): its footprint came out 20/255 darker than the table around it; 6/255 with
     this (1.5 times the scan's scale), 7/255 with 24 or 32 px. 0: always ``image_scale``."""
     max_scale: float = 4.0
-    """The most :attr:`min_box_px` may raise the views' scale to, relative to the scan's
+    """The most ``min_box_px`` may raise the views' scale to, relative to the scan's
     resolution (like ``image_scale``)."""
 
 

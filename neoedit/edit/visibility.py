@@ -106,6 +106,9 @@ def raised_masks(
 def _support_under(points: np.ndarray, boxes: list[OrientedBox]) -> np.ndarray:
     """(N,) the height of the support under each point (N,3): the bottom of the box whose
     footprint is nearest it (boxes may stand on supports at different heights)."""
-    away = np.stack([footprint_distance(*b.world_to_local(points)[:, :2].T, b) for b in boxes], 1)
+    away = []
+    for b in boxes:
+        local = b.world_to_local(points)
+        away.append(footprint_distance(local[:, 0], local[:, 1], b))
     bottoms = np.array([b.center_m[2] - b.size_m[2] / 2 for b in boxes])
-    return bottoms[away.argmin(1)]
+    return bottoms[np.stack(away, 1).argmin(1)]
