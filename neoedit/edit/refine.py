@@ -332,7 +332,7 @@ def refine_removal(
                 raised = (
                     raised_masks(virtual, window, depth, accumulation, boxes, cfg.support_band_m)
                     if cfg.fill_from_support
-                    else [np.zeros(m.shape, bool) for m in masks]
+                    else None
                 )
                 if cfg.inpaint_unseen_only and scan_cameras is not None and len(pix):
                     with timings.stage("visibility"):
@@ -340,7 +340,8 @@ def refine_removal(
                             scene, virtual, window, pix, depth, masks, scan_cameras, cfg, boxes,
                             raised,
                         )  # fmt: skip
-                avoid = [r & ~h for r, h in zip(raised, holes, strict=True)]
+                if raised is not None:
+                    avoid = [r & ~h for r, h in zip(raised, holes, strict=True)]
             with timings.stage("inpaint"):
                 inpainted = inpaint_views(inpainter, rendered, holes, xi, cfg.grid, avoid)
                 # seen pixels of M_v keep the preview's colour as their target
