@@ -26,18 +26,23 @@ from neoedit.bench.units import plan_units, unit_keys
 from neoedit.errors import NeoError
 
 SCENES = ("removal_1", "pick_place_1")
+BENCH_ELSEWHERE = ("nerfiller", "nerfiller-no-depth")
+"""Table I methods the small run below leaves out: the NeRFiller-style baseline retrains the
+whole field (a fifth of the run's time), and both of its variants are run and checked end
+to end by tests/test_nerfiller.py; the bench's dispatch to them is checked here
+(:func:`test_the_nerfiller_rows_run_the_nerfiller_baseline`)."""
 SUITE_METHODS = tuple(
-    m for m in dict.fromkeys((*REMOVAL_METHODS, *MOVE_METHODS)) if m != "nerfiller-no-depth"
+    m for m in dict.fromkeys((*REMOVAL_METHODS, *MOVE_METHODS)) if m not in BENCH_ELSEWHERE
 )
-"""Every method of Tables I and II but the NeRFiller-style baseline without depth: the same
-retraining as with depth (one switch), run and checked by tests/test_nerfiller.py."""
-SUITE_ABLATIONS = ("field-distill-only", "distil-target", "inpaint-telea")
-"""The ablations the small run below carries through the whole bench: the two moves that
-take another student (the whole field; the moved object distilled, not carried) and one
-removal's (it fills the Table I ablations). The others flip one option of the same NEO
-move or removal; each is checked to change exactly that option
-(:func:`test_each_ablation_changes_only_what_it_names` and its removal twin), not re-run
-end to end here."""
+"""Every method of Tables I and II but :data:`BENCH_ELSEWHERE`."""
+SUITE_ABLATIONS = ("field-distill-only", "inpaint-telea")
+"""The ablations the small run below carries through the whole bench: the move that takes
+another student (the whole field, by the field loss alone) and one removal's (it fills the
+Table I ablations). The others flip one option of the same NEO move or removal; each is
+checked to change exactly that option (:func:`test_each_ablation_changes_only_what_it_names`
+and its removal twin), not re-run end to end here (the moved object distilled rather than
+carried, ``distil-target``, is tests/test_move.py's
+``test_move_distils_both_regions_or_reuses_the_removal_patch``)."""
 
 
 def test_plan_has_one_unit_per_applicable_method_and_dependencies_first():
@@ -169,6 +174,22 @@ def test_an_unrelated_out_folder_is_refused(tmp_path: Path):
     assert (tmp_path / "mine" / "notes.txt").read_text() == "keep me"
 
 
+def test_a_reused_suite_of_another_profile_is_refused(tmp_path: Path):
+    """--data written at the standard profile's 320x240 under --profile small (whose tiny
+    field and budget are sized for 64x48): refused before any work, naming both sizes."""
+    data = tmp_path / "suite"
+    (data / "removal_1").mkdir(parents=True)
+    spec = {"spec": {"scan": {"width": 320, "height": 240}}}
+    (data / "removal_1" / "scene.json").write_text(json.dumps(spec))
+    cfg = BenchConfig(out=tmp_path / "run", data=data, scenes=("removal_1",), methods=("neo",))
+    with pytest.raises(NeoError, match="holds 320x240 scans, the small profile 64x48"):
+        prepare(cfg)
+    (data / "removal_1" / "scene.json").write_text("{}")
+    with pytest.raises(NeoError, match="is not a NEO-Sim scene"):
+        prepare(cfg)
+    assert not (tmp_path / "run").exists()
+
+
 def _leaves(value, path: str = "") -> dict[str, object]:
     """A configuration's leaves by dotted path."""
     if isinstance(value, dict):
@@ -243,6 +264,28 @@ def small_run(sim_root: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple
     return cfg, run_bench(cfg)
 
 
+def test_the_nerfiller_rows_run_the_nerfiller_baseline(sim_root: Path):
+    """The rows the small run leaves out (:data:`BENCH_ELSEWHERE`) reach the baseline that
+    tests/test_nerfiller.py runs: with and without depth, on the pre scan's images, with
+    the bench's language budget; refused without the scan."""
+    from neoedit.bench.methods import SceneInputs, language_config, removal_edit
+    from neoedit.bench.nerfiller import NerfillerRemove
+    from neoedit.data import load_scene_data
+    from neoedit.geometry import OrientedBox
+
+    box = OrientedBox((0.0, 0.0, 0.05), (0.1, 0.1, 0.1), 0.0)
+    inp = SceneInputs(sim_root / "removal_1", None, {}, None, seed=3, edit_scale=0.3)
+    scan = load_scene_data(sim_root / "removal_1" / "pre")
+    for method, depth in (("nerfiller", True), ("nerfiller-no-depth", False)):
+        edit = removal_edit(method, box, inp, "red mug", scan)
+        assert isinstance(edit, NerfillerRemove) and edit.data is scan and edit.boxes == [box]
+        assert edit.cfg.depth is depth and edit.cfg.seed == 3 and edit.prompt == "red mug"
+        assert edit.language == language_config(0.3)
+        with pytest.raises(NeoError, match="needs the pre scan's images"):
+            removal_edit(method, box, inp, "red mug", None)
+    assert set(BENCH_ELSEWHERE) <= set(REMOVAL_METHODS)
+
+
 def _table(report: str, title: str) -> list[list[str]]:
     """Rows (cells) of the first markdown table after the heading that starts with ``title``."""
     section = report.split(f"## {title}", 1)[1].split("\n#", 1)[0]  # to the next heading
@@ -253,13 +296,16 @@ def _table(report: str, title: str) -> list[list[str]]:
 def test_small_bench_fills_every_table_with_finite_numbers(small_run):
     cfg, summary = small_run
     assert summary["failed"] == []
-    n_units = 2 + 2 + len(REMOVAL_METHODS) - 1 + len(MOVE_METHODS) + len(SUITE_ABLATIONS)
+    per_scene = [
+        m for table in (REMOVAL_METHODS, MOVE_METHODS) for m in table if m in SUITE_METHODS
+    ]
+    n_units = 2 + 2 + len(per_scene) + len(SUITE_ABLATIONS)  # trainings, then one unit each
     removal_ablations = tuple(a for a in SUITE_ABLATIONS if a in REMOVAL_ABLATIONS)
     assert summary["units"] == summary["ran"] == n_units
     report = (cfg.out / "REPORT.md").read_text()
     for title, methods, regions in (
         ("Table I", tuple(m for m in REMOVAL_METHODS if m in SUITE_METHODS), 2),  # Full, Out
-        ("Table II", MOVE_METHODS, 3),  # Out, In, Full
+        ("Table II", tuple(m for m in MOVE_METHODS if m in SUITE_METHODS), 3),  # Out, In, Full
         ("Table I, ablations", ("neo", *removal_ablations), 2),  # Full, Out
         ("Table III", ("neo", *(a for a in SUITE_ABLATIONS if a in ABLATIONS)), 2),  # Out, In
     ):
