@@ -4,6 +4,10 @@
 class NeoError(Exception):
     """Bad input or an unrecoverable condition, with a message meant for the user."""
 
+    exit_code: int = 2
+    """The CLI's exit status for it: 2 (bad input, an error); a subclass for a command
+    that ran but found nothing says 1."""
+
 
 class DataError(NeoError):
     """A dataset on disk is malformed (missing field, missing image, bad pose, ...)."""

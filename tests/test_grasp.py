@@ -193,3 +193,23 @@ def test_a_cup_keeps_its_cavity_open():
     surface = object_surface(cup, box, GraspConfig().surface)
     inside_cavity, in_wall = [0.0, 0.0, 0.05], [0.0275, 0.0, 0.05]
     assert surface.solid(np.array([inside_cavity, in_wall])).tolist() == [False, True]
+
+
+def test_every_verb_that_looks_an_object_up_exits_1_when_nothing_matches(
+    move_scene: Path, tmp_path: Path, capsys
+):
+    """No match is a finding, not bad input: query, remove, move and grasp agree on exit
+    status 1 (as grep does), say so in one line, and write nothing."""
+    prompt = "purple elephant"
+    runs = {
+        "query": ["--views", "0"],
+        "remove": ["--no-inpaint"],
+        "move": ["--translate", "0.05", "0", "0", "--preview"],
+        "grasp": [],
+    }
+    for verb, extra in runs.items():
+        out = tmp_path / verb
+        assert main([verb, str(move_scene), prompt, *extra, "--out", str(out)]) == 1, verb
+        said = capsys.readouterr()
+        assert f"no object matched '{prompt}'" in " ".join((said.out + said.err).split()), verb
+        assert not out.exists(), verb

@@ -5,6 +5,7 @@ the user's umask, leftovers of crashed runs and very long prompts."""
 from __future__ import annotations
 
 import errno
+import json
 import os
 import shutil
 from pathlib import Path
@@ -274,6 +275,31 @@ def test_sim_benchmark_writes_only_into_a_new_empty_or_earlier_suite_folder(tmp_
     from neoedit.cli.sim import _is_suite
 
     assert _is_suite(earlier) and not _is_suite(user)
+
+
+def test_a_suite_rerun_keeps_its_figures_and_refuses_another_profile_or_seed(tmp_path, capsys):
+    """Re-running into an earlier suite skips its scenes and keeps what suite.json said of
+    them (strict JSON: no NaN for a skipped scene's time); a run of another profile or seed
+    would list the old scans under its own name, so it is refused and nothing changes."""
+
+    def strict(path: Path) -> dict:
+        def refuse(name: str):
+            raise ValueError(f"not JSON: {name}")
+
+        return json.loads(path.read_text(), parse_constant=refuse)
+
+    suite = tmp_path / "suite"
+    argv = ["sim", "benchmark", "--profile", "small", "--only", "removal_1", "--out", suite]
+    assert run_neo(argv, capsys).code == 0
+    first = strict(suite / "suite.json")
+    res = run_neo(argv, capsys)
+    assert res.code == 0 and "exists, skipped" in res.out
+    assert strict(suite / "suite.json") == first  # its time is the one it was made in
+    before = (suite / "suite.json").read_bytes()
+    for other in (["--seed", "1"], ["--profile", "standard"]):
+        res = run_neo([*argv, *other], capsys)
+        assert res.code == 2 and "holds the small suite of seed 0" in res.err, other
+        assert (suite / "suite.json").read_bytes() == before
 
 
 def test_replacing_needs_a_neoedit_output_even_in_the_api(tmp_path):

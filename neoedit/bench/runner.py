@@ -9,6 +9,7 @@ different thread count may differ in their last bits).
 
 from __future__ import annotations
 
+import json
 import socket
 import time
 from collections.abc import Callable
@@ -30,6 +31,7 @@ from neoedit.bench.units import (
 from neoedit.bench.work import Context, cached, run_unit
 from neoedit.errors import NeoError
 from neoedit.sim.run import post_scan_names
+from neoedit.sim.spec import SceneSpec
 from neoedit.utils.io import atomic_write_json, mark_output, output_kind
 from neoedit.utils.progress import make_progress
 
@@ -65,9 +67,10 @@ class BenchConfig:
     else the cores of the process; with Ray, the cores divided by the workers)."""
 
 
-def _data_ids(cfg: BenchConfig, scenes: list[str]) -> dict[str, str]:
+def _data_ids(cfg: BenchConfig, scenes: list[str], specs: dict[str, SceneSpec]) -> dict[str, str]:
     """A reused suite's scenes enter the keys by the hash of their files (a re-rendered scan
-    is new data)."""
+    is new data); scans of another profile's size are refused (the profile's budget is
+    sized for its scans: a small run on 320x240 scans trains its tiny field for hours)."""
     if cfg.data is None:
         return {}
     ids = {}
@@ -75,6 +78,17 @@ def _data_ids(cfg: BenchConfig, scenes: list[str]) -> dict[str, str]:
         spec = cfg.data / name / "scene.json"
         if not spec.is_file():
             raise NeoError(f"{cfg.data} has no scene {name} (no {spec}); run neo sim benchmark")
+        try:
+            scan = json.loads(spec.read_text())["spec"]["scan"]
+            size = (int(scan["width"]), int(scan["height"]))
+        except (OSError, ValueError, TypeError, KeyError) as e:
+            raise NeoError(f"{spec} is not a NEO-Sim scene ({e}); run neo sim benchmark") from None
+        want = (specs[name].scan.width, specs[name].scan.height)
+        if size != want:
+            raise NeoError(
+                f"{cfg.data / name} holds {size[0]}x{size[1]} scans, the {cfg.profile} profile "
+                f"{want[0]}x{want[1]}: give the --profile its suite was written with"
+            )
         ids[name] = folder_hash(cfg.data / name)
     return ids
 
@@ -117,7 +131,7 @@ def prepare(cfg: BenchConfig) -> tuple[Context, list[Unit], dict[str, str]]:
     methods = list(dict.fromkeys(cfg.methods)) or list(ALL_METHODS)
     check_selection(scenes, methods, specs)
     _check_out(cfg.out)
-    ids = _data_ids(cfg, scenes)
+    ids = _data_ids(cfg, scenes, specs)
     posts = {s: post_scan_names(len(specs[s].actions)) for s in scenes}
     units = plan_units(scenes, methods, posts, simulate=cfg.data is None)
     if not units:

@@ -42,6 +42,9 @@ imports only the query's module (every verb's module together: 0.5 s more per co
 the edit methods and the baselines among them). ``sim`` and ``import``, help and errors
 go through :data:`neoedit.cli._commands.Commands`, so they read as they always did."""
 
+GROUPS = ("sim", "import")
+"""The verbs with verbs of their own (``neo sim scene``, ``neo import colmap``)."""
+
 
 def __getattr__(name: str) -> Any:
     if name == "Commands":  # the whole CLI, for help, errors and tests
@@ -89,7 +92,8 @@ def quiet_third_party() -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of ``neo``; returns the exit status (0 ok, 2 bad input, 130 interrupted)."""
+    """Entry point of ``neo``; returns the exit status (0 ok, 1 nothing found: a prompt
+    matched no object, no collision-free grasp; 2 bad input or an error; 130 interrupted)."""
     args, threads = pop_threads(list(sys.argv[1:] if argv is None else argv))
     quiet = "--quiet" in args  # results and errors only: no progress bars
     if quiet and "--verbose" in args:
@@ -103,6 +107,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         args = [a for a in args if a != "--verbose"]
     else:
         quiet_third_party()
+    unknown = _unknown_verb(args)
+    if unknown is not None:
+        Console(stderr=True).print(f"[bold red]error:[/] {escape(unknown)}", highlight=False)
+        return 2
     command = _parse_one_verb(args)
     if command is None:  # help, a group verb, or an error: the whole CLI says it as always
         from neoedit.cli._commands import Commands
@@ -114,6 +122,19 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     with _env(QUIET_ENV, "1" if quiet else os.environ.get(QUIET_ENV)):
         return _run(command, threads)
+
+
+def _unknown_verb(args: list[str]) -> str | None:
+    """The message for a first word that is no verb (tyro calls it an unrecognised
+    option); None when it is one, or an option."""
+    if not args or args[0].startswith("-") or args[0] in VERBS or args[0] in GROUPS:
+        return None
+    import difflib
+
+    known = sorted([*VERBS, *GROUPS])
+    close = difflib.get_close_matches(args[0], known, n=1)
+    hint = f"did you mean '{close[0]}'? " if close else ""
+    return f"'{args[0]}' is not a neo command; {hint}the commands: {', '.join(known)}"
 
 
 BOOL_WORDS = frozenset({"true", "false", "yes", "no", "on", "off", "0", "1"})
@@ -197,7 +218,7 @@ def _run(command: _Command, threads: str | None) -> int:
         command.run()
     except (NeoError, OSError) as e:  # OSError: a file that cannot be read or written
         err.print(f"[bold red]error:[/] {user_message(e)}", highlight=False)
-        return 2
+        return getattr(e, "exit_code", 2)
     except Exception as e:
         message = resource_message(e)  # out of memory, disk full: one line, no traceback
         if message is None:

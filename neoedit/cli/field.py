@@ -183,7 +183,9 @@ class EvalCommand:
         if self.json:
             check_writable_output(self.json, inputs, "json", self.overwrite)
         if self.images:
-            check_writable_output(self.images, inputs, "eval-images", self.overwrite)
+            check_writable_output(
+                self.images, inputs, "eval-images", self.overwrite, option="--images"
+            )
         scene = load_scene(self.scene, resolve_device(self.device))
         data = load_scene_data(self.data, self.data_cfg)
         out_boxes = load_boxes(self.out_box) if self.out_box else []

@@ -119,6 +119,7 @@ class PlanCommand:
                     )
                 except NeoError as e:  # NoMatch too
                     failed = NeoError(f"step {k} ({action.label}): {e}; the plan stopped")
+                    failed.exit_code = e.exit_code
                     break
                 out = self.out / f"step_{k}"
                 save_scene(out, child, extras=report_writer(self.report, scene, child))
@@ -148,9 +149,12 @@ class PlanCommand:
         the store holds only a copy of the input, and is removed (this command made it)."""
         if len(names) == 1:
             shutil.rmtree(self.out, ignore_errors=True)
-            raise NeoError(f"{failed}; nothing was written") from None
-        self._strip(columns, names)
-        raise NeoError(f"{failed}, versions step_0 .. {names[-1]} are in {self.out}") from None
+            stop = NeoError(f"{failed}; nothing was written")
+        else:
+            self._strip(columns, names)
+            stop = NeoError(f"{failed}, versions step_0 .. {names[-1]} are in {self.out}")
+        stop.exit_code = failed.exit_code  # 1 when the step's prompt matched nothing
+        raise stop from None
 
     def _finder(self, scene: Scene) -> FindBoxes:
         """The boxes of a step's objects on ``scene``: its own, or its prompt's query."""

@@ -95,7 +95,7 @@ class SimBenchmarkCommand:
             raise NeoError(f"unknown scene(s) {unknown}; the suite has {known}")
         if self.only:
             scenes = [s for s in scenes if s.name in self.only]
-        self._check_out(scenes)
+        earlier = self._check_out(scenes)
         self.out.mkdir(parents=True, exist_ok=True)
         table = Table(title=f"NEO-Sim {self.profile} (seed {self.seed}) -> {escape(str(self.out))}")
         for col in ("scene", "kind", "setup", "scans", "objects", "seconds", "MB"):
@@ -107,7 +107,7 @@ class SimBenchmarkCommand:
             if (target / "scene.json").is_file() and not self.overwrite:
                 console.print(f"[dim]{spec.name}: exists, skipped (--overwrite to regenerate)[/]")
                 summary = json.loads((target / "scene.json").read_text())
-                summary["seconds"] = float("nan")
+                summary["seconds"] = earlier.get(spec.name, {}).get("seconds")  # when made
             else:
                 summary = simulate_scene(spec, target, overwrite=self.overwrite)
             size = _dir_size_mb(target)
@@ -127,10 +127,12 @@ class SimBenchmarkCommand:
                 spec.setup.name,
                 " ".join(summary["scans"]),
                 str(len(spec.objects)),
-                f"{summary['seconds']:.1f}",
+                "-" if summary["seconds"] is None else f"{summary['seconds']:.1f}",
                 f"{size:.1f}",
             )
         total_s = time.perf_counter() - t0
+        done = {r["name"] for r in rows}  # the earlier run's other scenes stay listed
+        rows = [*(r for n, r in earlier.items() if n not in done), *rows]
         atomic_write_json(
             self.out / "suite.json", {"profile": self.profile, "seed": self.seed, "scenes": rows}
         )
@@ -138,17 +140,20 @@ class SimBenchmarkCommand:
         console.print(table)
         console.print(f"total {total_s:.1f} s, {_dir_size_mb(self.out):.1f} MB")
 
-    def _check_out(self, scenes: list) -> None:
-        """OUT is new, empty or an earlier suite (its scenes are kept, or replaced with
-        --overwrite); never a folder of something else."""
+    def _check_out(self, scenes: list) -> dict[str, dict]:
+        """OUT is new, empty or an earlier suite of the same profile and seed (its scenes
+        are kept, or replaced with --overwrite); never a folder of something else. Returns
+        the earlier suite's rows by scene name."""
         if self.out.exists() and not self.out.is_dir():
             raise NeoError(f"{self.out} exists and is not a folder")
+        earlier: dict[str, dict] = {}
         if self.out.is_dir() and any(self.out.iterdir()):
             if not _is_suite(self.out):
                 raise NeoError(
                     f"{self.out} is not empty and holds no earlier `neo sim benchmark` output; "
                     "choose a new or empty --out"
                 )
+            earlier = self._earlier_rows()
             probe_writable(self.out)
         else:
             check_writable_output(self.out, [], "sim-suite")
@@ -156,6 +161,25 @@ class SimBenchmarkCommand:
             target = self.out / spec.name
             if target.exists() and output_kind(target) != "sim":
                 check_writable_output(target, [], "sim", self.overwrite)
+        return earlier
+
+    def _earlier_rows(self) -> dict[str, dict]:
+        """The rows of OUT's suite.json; a suite of another profile or seed is refused (its
+        scenes would be listed under this run's name)."""
+        try:
+            suite = json.loads((self.out / "suite.json").read_text())
+        except (OSError, ValueError):
+            return {}  # marked as a suite, but killed before its first suite.json
+        if not isinstance(suite, dict):
+            return {}
+        profile, seed = suite.get("profile"), suite.get("seed")
+        if (profile, seed) != (self.profile, self.seed):
+            raise NeoError(
+                f"{self.out} holds the {profile} suite of seed {seed}; add to it with "
+                f"--profile {profile} --seed {seed}, or choose another --out"
+            )
+        rows = suite.get("scenes")
+        return {r["name"]: r for r in rows or [] if isinstance(r, dict) and "name" in r}
 
 
 @dataclass

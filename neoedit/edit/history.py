@@ -37,9 +37,8 @@ def check_output(parent_dir: Path, out: Path, overwrite: bool = False) -> None:
         raise NeoError(
             f"--out {out} is the input scene: an edit never overwrites the version it started from"
         )
-    if Path(out).exists() and not overwrite:
-        raise NeoError(f"{out} already exists (choose another --out or pass --overwrite)")
-    check_writable_output(out, [parent_dir], "scene", overwrite)  # only a scene is replaced
+    hint = "choose another --out or pass --overwrite"
+    check_writable_output(out, [parent_dir], "scene", overwrite, hint)  # only a scene is replaced
 
 
 def edit_lock(out: Path) -> contextlib.AbstractContextManager[None]:

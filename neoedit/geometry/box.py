@@ -233,7 +233,12 @@ def load_boxes(path: Path) -> list[OrientedBox]:
     items = data if isinstance(data, list) else [data]
     if not items:
         raise NeoError(f"{path} holds an empty list: give a box, or a list of boxes")
-    return [OrientedBox.from_dict(d.get("box", d) if isinstance(d, dict) else {}) for d in items]
+    try:
+        return [
+            OrientedBox.from_dict(d.get("box", d) if isinstance(d, dict) else {}) for d in items
+        ]
+    except NeoError as e:  # the message names the file it came from
+        raise NeoError(f"{path}: {e}") from None
 
 
 def yaw_error_deg(pred: OrientedBox, truth: OrientedBox, square_tolerance: float = 0.15) -> float:

@@ -33,7 +33,11 @@ from neoedit.utils.validate import shorten
 
 
 class NoMatch(NeoError):
-    """The prompt matched nothing in the scene (carries the best relevancy)."""
+    """The prompt matched nothing in the scene (carries the best relevancy). Every verb
+    that looks an object up (query, remove, move, grasp, plan) exits with status 1 on it,
+    as ``grep`` does for no match: the input was fine, the scene holds no such object."""
+
+    exit_code = 1
 
     def __init__(self, prompt: str, best: float, threshold: float, reason: str | None = None):
         why = reason or f"best relevancy {best:.3f} < threshold {threshold:.3f}"

@@ -298,8 +298,9 @@ def _replaceable_json(path: Path) -> bool:
     )
 
 
-def refuse_foreign(path: Path, kind: str | None) -> None:
-    """Raise unless the existing ``path`` may be replaced by an output of ``kind``."""
+def refuse_foreign(path: Path, kind: str | None, option: str = "--out") -> None:
+    """Raise unless the existing ``path`` may be replaced by an output of ``kind``
+    (``option``: the command's option that named it, for the message)."""
     if kind == "json":
         if not _replaceable_json(path):
             raise NeoError(
@@ -321,7 +322,7 @@ def refuse_foreign(path: Path, kind: str | None) -> None:
     )
     raise NeoError(
         f"{path} exists and is {what}; refusing to replace it with a neoedit "
-        f"{kind or 'output'} (choose another --out)"
+        f"{kind or 'output'} (choose another {option})"
     )
 
 
@@ -392,20 +393,21 @@ def check_writable_output(
     kind: str = "scene",
     overwrite: bool = False,
     hint: str = "pass --overwrite to replace it",
+    option: str = "--out",
 ) -> None:
     """Everything a writing command checks before its work starts (one rule for every verb).
 
     ``out`` must not be, be inside or hold one of ``inputs``; an existing ``out`` must be a
     neoedit output of ``kind`` (or an empty folder; for kind 'json', a JSON file that is no
     dataset or scene metadata) and is replaced only with ``overwrite`` (``hint`` says
-    how to ask for that); ``out`` must not lie inside a scene or a store; the folder it goes
+    how to ask for that; ``option`` is the option that named ``out``, for messages); ``out`` must not lie inside a scene or a store; the folder it goes
     to must be writable. Also removes what crashed runs left there.
     """
     out = Path(out)
     _check_not_input(out, inputs)
     _check_not_inside_scene(out)
     if out.exists() or out.is_symlink():
-        refuse_foreign(out, kind)
+        refuse_foreign(out, kind, option)
         if not overwrite and not _is_empty_dir(out):
             raise NeoError(f"{out} already exists ({hint})")
         _check_replaceable(out)
