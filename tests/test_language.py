@@ -7,6 +7,7 @@ import math
 import shutil
 from pathlib import Path
 
+import imageio.v3 as iio
 import numpy as np
 import pytest
 import torch
@@ -294,6 +295,12 @@ def test_query_cli(language_scene: Path, tmp_path: Path, capsys):
     assert (
         main(["query", str(language_scene), "quantum chromodynamics lecture", "--views", "0"]) == 1
     )
+    assert "no object matched" in capsys.readouterr().out
+    # a miss still pictures where its prompt scored (a relevancy map, no box)
+    miss = ["query", str(language_scene), "quantum chromodynamics lecture", "--views", "2"]
+    assert main([*miss, "--image-scale", "1", "--out", str(tmp_path / "miss")]) == 1
+    found = iio.imread(tmp_path / "pics" / "query.png")
+    assert iio.imread(tmp_path / "miss" / "query.png").shape == found.shape  # render | map
     assert "no object matched" in capsys.readouterr().out
     assert main(["query", str(language_scene), " ; "]) == 2
     assert "empty prompt" in capsys.readouterr().err

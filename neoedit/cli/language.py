@@ -24,7 +24,8 @@ console = Console()
 class QueryCommand:
     """Find the object a prompt names; prints its box as JSON (the box format of objects.json)
     and writes a picture per view: the render with the box, the relevancy map. Several prompts
-    are separated by ';'. A prompt that matches nothing exits with status 1."""
+    are separated by ';'. A prompt that matches nothing exits with status 1 (its relevancy map
+    is still drawn: where it scored best)."""
 
     scene: tyro.conf.Positional[Path]
     """Scene directory (with a language field)."""
@@ -72,8 +73,8 @@ class QueryCommand:
         boxes = [r.to_dict() for r in results]
         for box in boxes:
             console.print_json(json.dumps(box))
-        if self.views and results:
-            path = self._pictures(scene, results, [r.prompt for r in results], text)
+        if self.views:  # a prompt that matched nothing too: where it scored, without a box
+            path = self._pictures(scene, results, prompts, text)
             if path is not None:
                 console.print(f"wrote {escape(str(path))}")
         if misses:

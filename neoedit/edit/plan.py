@@ -180,14 +180,30 @@ def parse_plan(raw: Any, where: str = "plan") -> list[Action]:
             actions.append(Action.model_validate(item))
         except ValidationError as e:
             err = e.errors()[0]
-            loc = ".".join(str(x) for x in err["loc"])
+            path = list(err["loc"])
+            if err["type"] == "missing" and path and isinstance(path[-1], int):
+                path.pop()  # a short list: said of the list, not of its missing item
+                err = {**err, "type": "too_short"}
+            loc = ".".join(str(x) for x in path)
             msg = err["msg"].removeprefix("Value error, ")
+            if err["type"] in ("too_short", "too_long") and path[-1:] == ["translate_m"]:
+                msg = f"takes 3 numbers [x, y, z], got {_length(item, path)}"
             if err["type"] == "literal_error" and err["loc"][:1] == ("edits",):
                 msg = "a batch's edits are of type 'move' or 'remove'"  # not 'batch'
             if err["type"] == "extra_forbidden":
                 msg = f"unknown key{_closest(str(err['loc'][-1]))}"
             raise NeoError(f"{where}: step {i}: {loc + ': ' if loc else ''}{msg}") from None
     return actions
+
+
+def _length(item: Any, path: list[Any]) -> str:
+    """How many values the list at ``path`` of a plan step holds ('?' if it is not one)."""
+    for key in path:
+        try:
+            item = item[key]
+        except (KeyError, IndexError, TypeError):
+            return "?"
+    return str(len(item)) if isinstance(item, list) else "?"
 
 
 def check_plan(scene: Scene, actions: list[Action]) -> None:
