@@ -25,7 +25,6 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 from scipy import ndimage
-from sklearn.cluster import KMeans
 
 from neoedit.cameras.rays import CameraTensors
 from neoedit.fields.radiance import Field
@@ -190,6 +189,8 @@ def fit_light(normals: np.ndarray, rgb: np.ndarray, groups: int = 4, seed: int =
     k = int(min(groups, len(normals) // 50, distinct))
     labels = np.zeros(len(chroma), dtype=int)
     if k > 1:
+        from sklearn.cluster import KMeans  # lazy: 0.6 s of imports every edit command paid
+
         labels = KMeans(k, n_init=3, random_state=seed).fit_predict(chroma)
     _, labels = np.unique(labels, return_inverse=True)  # no empty group
     onehot = np.eye(int(labels.max()) + 1)[labels]  # (P,k)
