@@ -299,8 +299,12 @@ CASES = [
     C("move-nested-preview", "move {scene} --box mug.json --translate 0.02 0 0 --out v --edit.preview", 2, "neo move has no --edit.preview", MUG),
     C("plan-nested-preview", "plan {scene} p.json --out st --edit.move.preview", 2, "Unrecognized options: --edit.move.preview", write("p.json", [{"type": "move", "box": BOX_MUG, "translate_m": [0.02, 0, 0]}])),
     C("plan-edit-preview", "plan {scene} p.json --out st --edit.preview", 2, "--edit.preview is set by --preview", write("p.json", [{"type": "remove", "box": BOX_MUG}])),
-    # the sixth probe: a mistyped verb is named as one (tyro called it an option)
+    # the sixth probe: plan lists of the wrong length, a --transform checked before the
+    # query, a --threads without its value, a mistyped verb named as one (tyro: an option)
     C("plan-short-translation", "plan {scene} p.json --out st", 2, "step 2: translate_m: takes 3 numbers [x, y, z], got 2", write("p.json", [{"type": "remove", "box": BOX_MUG}, {"type": "move", "box": BOX_MUG, "translate_m": [0.02, 0]}])),
+    C("plan-long-translation", "plan {scene} p.json --out st", 2, "step 1: translate_m: takes 3 numbers [x, y, z], got 4", write("p.json", [{"type": "move", "box": BOX_MUG, "translate_m": [0.02, 0, 0, 1]}])),
+    C("move-scaled-transform-before-query", "move {scene} mug --transform t.json --out v", 2, "t.json: the transform must be a finite rigid motion", write("t.json", [[2, 0, 0, 0], [0, 2, 0, 0], [0, 0, 2, 0], [0, 0, 0, 1]])),
+    C("threads-missing-value", "--threads train {data} --out s", 2, "--threads must be a positive integer, got 'train'"),
     C("unknown-verb", "trian {data} --out s", 2, "'trian' is not a neo command; did you mean 'train'?"),
     C("plan-batch-overlap", "plan {scene} p.json --out st --preview", 2, "step 1 (batch (remove box, move box)): edits 1 (remove) and 2 (move) of the batch touch the same place", write("p.json", [{"type": "batch", "edits": [{"type": "remove", "box": BOX_MUG}, {"type": "move", "box": BOX_MUG, "translate_m": [0.02, 0, 0]}]}])),
     C("plan-batch-move-out", "plan {scene} p.json --out st --preview", 2, "leaves the scene box", write("p.json", [{"type": "batch", "edits": [{"type": "move", "box": BOX_MUG, "translate_m": [0, 0, -0.5]}]}])),

@@ -300,6 +300,17 @@ def test_a_suite_rerun_keeps_its_figures_and_refuses_another_profile_or_seed(tmp
         res = run_neo([*argv, *other], capsys)
         assert res.code == 2 and "holds the small suite of seed 0" in res.err, other
         assert (suite / "suite.json").read_bytes() == before
+    from neoedit.cli.sim import SimBenchmarkCommand
+
+    # regenerating every scene of it (--overwrite, no --only) keeps nothing of it: allowed
+    whole = SimBenchmarkCommand(out=suite, profile="small", seed=1, overwrite=True)
+    assert whole._earlier_rows() == {}
+    # a suite written before this check (a NaN time for a skipped scene) is read as no time
+    old = json.loads(before)
+    old["scenes"][0]["seconds"] = float("nan")
+    (suite / "suite.json").write_text(json.dumps(old))
+    rows = SimBenchmarkCommand(out=suite, profile="small")._earlier_rows()
+    assert rows["removal_1"]["seconds"] is None
 
 
 def test_replacing_needs_a_neoedit_output_even_in_the_api(tmp_path):

@@ -92,8 +92,9 @@ def quiet_third_party() -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of ``neo``; returns the exit status (0 ok, 1 nothing found: a prompt
-    matched no object, no collision-free grasp; 2 bad input or an error; 130 interrupted)."""
+    """Entry point of ``neo``; returns the exit status (0 ok; 1 a finding, not a fault: a
+    prompt matched no object, no collision-free grasp, a failed ``neo sim execute``, failed
+    ``neo bench`` units; 2 bad input or an error; 130 interrupted)."""
     args, threads = pop_threads(list(sys.argv[1:] if argv is None else argv))
     quiet = "--quiet" in args  # results and errors only: no progress bars
     if quiet and "--verbose" in args:
@@ -107,7 +108,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         args = [a for a in args if a != "--verbose"]
     else:
         quiet_third_party()
-    unknown = _unknown_verb(args)
+    unknown = _threads_error(threads) or _unknown_verb(args)
     if unknown is not None:
         Console(stderr=True).print(f"[bold red]error:[/] {escape(unknown)}", highlight=False)
         return 2
@@ -124,6 +125,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         return _run(command, threads)
 
 
+def _threads_error(threads: str | None) -> str | None:
+    """The message for a bad ``--threads`` value, before the arguments are read as a
+    command (``neo --threads train ...`` took 'train' as the value)."""
+    try:
+        if threads is not None:
+            parse_threads(threads)
+    except NeoError as e:
+        return str(e)
+    return None
+
+
 def _unknown_verb(args: list[str]) -> str | None:
     """The message for a first word that is no verb (tyro calls it an unrecognised
     option); None when it is one, or an option."""
@@ -134,6 +146,8 @@ def _unknown_verb(args: list[str]) -> str | None:
     known = sorted([*VERBS, *GROUPS])
     close = difflib.get_close_matches(args[0], known, n=1)
     hint = f"did you mean '{close[0]}'? " if close else ""
+    if args[0] == "help":
+        hint = "for help: neo --help or neo COMMAND --help; "
     return f"'{args[0]}' is not a neo command; {hint}the commands: {', '.join(known)}"
 
 

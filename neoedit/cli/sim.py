@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -97,6 +98,7 @@ class SimBenchmarkCommand:
             scenes = [s for s in scenes if s.name in self.only]
         earlier = self._check_out(scenes)
         self.out.mkdir(parents=True, exist_ok=True)
+        mark_output(self.out, "sim-suite")  # a run killed midway can be resumed into it
         table = Table(title=f"NEO-Sim {self.profile} (seed {self.seed}) -> {escape(str(self.out))}")
         for col in ("scene", "kind", "setup", "scans", "objects", "seconds", "MB"):
             table.add_column(col)
@@ -136,7 +138,6 @@ class SimBenchmarkCommand:
         atomic_write_json(
             self.out / "suite.json", {"profile": self.profile, "seed": self.seed, "scenes": rows}
         )
-        mark_output(self.out, "sim-suite")
         console.print(table)
         console.print(f"total {total_s:.1f} s, {_dir_size_mb(self.out):.1f} MB")
 
@@ -164,22 +165,32 @@ class SimBenchmarkCommand:
         return earlier
 
     def _earlier_rows(self) -> dict[str, dict]:
-        """The rows of OUT's suite.json; a suite of another profile or seed is refused (its
-        scenes would be listed under this run's name)."""
+        """The rows of OUT's suite.json (a time that is no finite number: None). A suite of
+        another profile or seed is refused (its scenes would be listed under this run's
+        name), unless --overwrite regenerates every scene of it (no --only): then nothing
+        of it is kept."""
         try:
             suite = json.loads((self.out / "suite.json").read_text())
         except (OSError, ValueError):
-            return {}  # marked as a suite, but killed before its first suite.json
+            return {}  # a suite written before suite.json existed: no rows to keep
         if not isinstance(suite, dict):
             return {}
         profile, seed = suite.get("profile"), suite.get("seed")
         if (profile, seed) != (self.profile, self.seed):
+            if self.overwrite and not self.only:
+                return {}
             raise NeoError(
                 f"{self.out} holds the {profile} suite of seed {seed}; add to it with "
-                f"--profile {profile} --seed {seed}, or choose another --out"
+                f"--profile {profile} --seed {seed}, regenerate all of it with --overwrite "
+                "(without --only), or choose another --out"
             )
-        rows = suite.get("scenes")
-        return {r["name"]: r for r in rows or [] if isinstance(r, dict) and "name" in r}
+        rows = {}
+        for row in suite.get("scenes") or []:
+            if isinstance(row, dict) and isinstance(row.get("name"), str):
+                seconds = row.get("seconds")
+                finite = isinstance(seconds, (int, float)) and math.isfinite(seconds)
+                rows[row["name"]] = {**row, "seconds": seconds if finite else None}
+        return rows
 
 
 @dataclass

@@ -233,12 +233,14 @@ def load_boxes(path: Path) -> list[OrientedBox]:
     items = data if isinstance(data, list) else [data]
     if not items:
         raise NeoError(f"{path} holds an empty list: give a box, or a list of boxes")
-    try:
-        return [
-            OrientedBox.from_dict(d.get("box", d) if isinstance(d, dict) else {}) for d in items
-        ]
-    except NeoError as e:  # the message names the file it came from
-        raise NeoError(f"{path}: {e}") from None
+    boxes = []
+    for i, d in enumerate(items, 1):
+        try:
+            boxes.append(OrientedBox.from_dict(d.get("box", d) if isinstance(d, dict) else {}))
+        except NeoError as e:  # the message names the file (and the item) it came from
+            where = f"{path}: box {i}" if len(items) > 1 else str(path)
+            raise NeoError(f"{where}: {e}") from None
+    return boxes
 
 
 def yaw_error_deg(pred: OrientedBox, truth: OrientedBox, square_tolerance: float = 0.15) -> float:

@@ -44,7 +44,8 @@ def write_query_images(
         r = scene.render_image(cams, i, h, w)
         rgb = (r["rgb"].clamp(0, 1).cpu().numpy() * 255).round().astype(np.uint8)
         boxed = rgb
-        for k, res in enumerate(results):
+        for k, res in enumerate(results):  # coloured as its prompt's column (misses skip)
+            k = prompts.index(res.prompt) if res.prompt in prompts else k
             boxed = draw_box(boxed, cameras, i, res.box, COLORS[k % len(COLORS)])
         tiles.append(boxed)
         labels.append(f"view {i}")

@@ -375,14 +375,14 @@ def _check_not_input(out: Path, inputs: Sequence[Path | None]) -> None:
             raise NeoError(f"{out} holds the input {inp}; replacing it would delete the input")
 
 
-def _check_replaceable(out: Path) -> None:
+def _check_replaceable(out: Path, option: str = "--out") -> None:
     """An existing output folder is replaced by a rename: a mount point cannot be, and a
     folder that refuses new files (read-only, immutable) is found here, not after the work."""
     if out.is_dir() and not out.is_symlink():
         if os.path.ismount(out):
             raise NeoError(
                 f"{out} is a mount point, which cannot be replaced; write into a new folder "
-                f"inside it (e.g. --out {out / 'result'})"
+                f"inside it (e.g. {option} {out / 'result'})"
             )
         probe_writable(out)
 
@@ -410,7 +410,7 @@ def check_writable_output(
         refuse_foreign(out, kind, option)
         if not overwrite and not _is_empty_dir(out):
             raise NeoError(f"{out} already exists ({hint})")
-        _check_replaceable(out)
+        _check_replaceable(out, option)
         if out.is_dir():
             refuse_foreign_files(out)
     anchor = _nearest_existing(out.parent)
