@@ -16,6 +16,7 @@ import math
 import threading
 import time
 import traceback
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Literal
@@ -103,6 +104,9 @@ class ViewerServer:
         self._views_lock = threading.Lock()
         self._commit_thread: threading.Thread | None = None
         self._commit_start = threading.Lock()
+        # a frame that finishes rendering after its tab closed is dropped, not worth a warning
+        # (set once, process-wide: catch_warnings in the render threads would race)
+        warnings.filterwarnings("ignore", "Queued a .* on a closed connection", UserWarning)
         self.server = viser.ViserServer(host=host, port=port, label="neo view", verbose=verbose)
         try:
             self.scan = self._scan_views()
