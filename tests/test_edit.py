@@ -222,6 +222,46 @@ def test_raised_pixels_stand_above_the_support_under_them_in_every_view():
     )
 
 
+def test_the_margin_stops_at_a_neighbour_not_at_the_support_rising_into_the_contact():
+    """Surface points in the margin around a removed box stop it only when their language
+    feature is unlike the object's *and* unlike the support's: a short field's table reads
+    1-2 cm high next to an object's contact (it stopped a ball's margin on two sides and
+    left its fuzzy rim floating: dark specks in the demo plan's removal), a duck beside it
+    is a neighbour."""
+    from types import SimpleNamespace
+
+    from neoedit.edit.masks import grown_box_clear_of
+    from neoedit.edit.remove import RemoveConfig, neighbour_points
+
+    box = OrientedBox((0.0, 0.0, 0.05), (0.08, 0.08, 0.1), 0.0)  # bottom on the table, z = 0
+    rng = np.random.default_rng(0)
+    inside = rng.uniform((-0.03, -0.03, 0.01), (0.03, 0.03, 0.09), (400, 3))
+    table = rng.uniform((-0.05, -0.05, 0.0), (0.05, 0.05, 0.004), (400, 3))
+    table = table[np.abs(table[:, :2]).max(1) > 0.041]  # the ring around the footprint
+    rising = rng.uniform((0.041, -0.03, 0.012), (0.044, 0.03, 0.02), (60, 3))  # +x: the table
+    duck = rng.uniform((-0.03, -0.046, 0.02), (0.03, -0.042, 0.06), (60, 3))  # -y: a neighbour
+    pts = np.concatenate([inside, table, rising, duck])
+
+    def language(p: torch.Tensor) -> torch.Tensor:  # object, table, duck: orthogonal features
+        x, y, z = p.unbind(-1)
+        duck_here = y < -0.041
+        object_here = (x.abs() <= 0.04) & (y.abs() <= 0.04) & (z > 0.005)
+        kind = torch.where(duck_here, 2, torch.where(object_here, 0, 1))
+        return torch.eye(3)[kind]
+
+    scene = SimpleNamespace(
+        language=SimpleNamespace(language=language),
+        surface_points_m=torch.as_tensor(pts, dtype=torch.float32),
+    )
+    found = neighbour_points(scene, box, RemoveConfig())  # type: ignore[arg-type]
+    assert len(found) == len(duck) and (found[:, 1] < -0.04).all()  # the duck only
+    grown = grown_box_clear_of(box, 0.01, found)
+    lo = np.asarray(grown.center_m) - np.asarray(grown.size_m) / 2
+    hi = np.asarray(grown.center_m) + np.asarray(grown.size_m) / 2
+    assert hi[0] == pytest.approx(0.05) and lo[0] == pytest.approx(-0.05)  # +x grows over the table
+    assert lo[1] > -0.042  # -y stops short of the duck
+
+
 def test_unknown_or_missing_inpainters_error(tmp_path: Path):
     with pytest.raises(NeoError, match="unknown inpainter"):
         make_inpainter("photoshop")

@@ -269,27 +269,34 @@ def seated_on_support(scene: Scene, box: OrientedBox, ring_m: float = 0.03) -> O
 @torch.no_grad()
 def neighbour_points(scene: Scene, box: OrientedBox, cfg: RemoveConfig) -> np.ndarray:
     """(K,3) surface points in the margin around ``box`` that belong to something else: above
-    the box's bottom (not the support surface) and unlike the object in the language field.
-    Empty for scenes without a language field."""
+    the box's bottom (not the support surface) and, in the language field, unlike the object
+    and unlike the support (a short field's table rises a centimetre or two into the
+    object's contact: it is no neighbour to stop at). Empty without a language field."""
     if scene.language is None or scene.surface_points_m is None or cfg.margin_m <= 0:
         return np.zeros((0, 3))
     pts = scene.surface_points_m.cpu().numpy().astype(np.float64)
     local = box.world_to_local(pts)
     inside = box.contains(pts)
-    shell = grown_box(box, cfg.margin_m).contains(pts) & ~inside
-    shell &= local[:, 2] > -box.half_extents[2] + 0.01  # not the support (+-5 mm in NEO-Sim)
+    around = grown_box(box, cfg.margin_m).contains(pts) & ~inside
+    low = local[:, 2] <= -box.half_extents[2] + 0.01  # the support (+-5 mm in NEO-Sim)
+    shell, support = around & ~low, around & low
     if not inside.any() or not shell.any():
         return np.zeros((0, 3))
-    device = scene.surface_points_m.device
-    feats = scene.language.language(
-        torch.as_tensor(pts[inside | shell], dtype=torch.float32, device=device)
-    ).float()
-    feats = torch.nn.functional.normalize(feats, dim=-1)
-    own = torch.nn.functional.normalize(
-        feats[torch.as_tensor(inside[inside | shell])].mean(0), dim=0
-    )
-    similar = (feats[torch.as_tensor(shell[inside | shell])] @ own).cpu().numpy()
-    return pts[shell][similar < cfg.neighbour_similarity]
+
+    device, language = scene.surface_points_m.device, scene.language
+
+    def features(mask: np.ndarray) -> torch.Tensor:
+        at = torch.as_tensor(pts[mask], dtype=torch.float32, device=device)
+        return torch.nn.functional.normalize(language.language(at).float(), dim=-1)
+
+    def mean(feats: torch.Tensor) -> torch.Tensor:
+        return torch.nn.functional.normalize(feats.mean(0), dim=0)
+
+    near = features(shell)
+    other = (near @ mean(features(inside))).cpu().numpy() < cfg.neighbour_similarity
+    if support.sum() >= 10:
+        other &= (near @ mean(features(support))).cpu().numpy() < cfg.neighbour_similarity
+    return pts[shell][other]
 
 
 @torch.no_grad()
