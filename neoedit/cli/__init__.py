@@ -108,7 +108,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         args = [a for a in args if a != "--verbose"]
     else:
         quiet_third_party()
-    unknown = _threads_error(threads) or _unknown_verb(args)
+    try:  # before the arguments are read as a command ('neo --threads train' took 'train')
+        n_threads = None if threads is None else parse_threads(threads)
+    except NeoError as e:
+        Console(stderr=True).print(f"[bold red]error:[/] {escape(str(e))}", highlight=False)
+        return 2
+    unknown = _unknown_verb(args)
     if unknown is not None:
         Console(stderr=True).print(f"[bold red]error:[/] {escape(unknown)}", highlight=False)
         return 2
@@ -122,18 +127,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         Console(stderr=True).print(f"[bold red]error:[/] {escape(misread)}", highlight=False)
         return 2
     with _env(QUIET_ENV, "1" if quiet else os.environ.get(QUIET_ENV)):
-        return _run(command, threads)
-
-
-def _threads_error(threads: str | None) -> str | None:
-    """The message for a bad ``--threads`` value, before the arguments are read as a
-    command (``neo --threads train ...`` took 'train' as the value)."""
-    try:
-        if threads is not None:
-            parse_threads(threads)
-    except NeoError as e:
-        return str(e)
-    return None
+        return _run(command, n_threads)
 
 
 def _unknown_verb(args: list[str]) -> str | None:
@@ -222,11 +216,11 @@ class _Command(Protocol):
     def run(self) -> None: ...
 
 
-def _run(command: _Command, threads: str | None) -> int:
+def _run(command: _Command, threads: int | None) -> int:
     """Run a parsed command; errors -> one line on stderr and the exit status."""
     err = Console(stderr=True)
     try:
-        configure_threads(None if threads is None else parse_threads(threads))
+        configure_threads(threads)
         check_options(command)
         check_device(getattr(command, "device", "auto"))
         command.run()

@@ -324,13 +324,9 @@ def read_transform(path: Path) -> np.ndarray:
         t = np.zeros(0)
     if t.shape != (4, 4):
         raise NeoError(f"{path}: expected a 4x4 matrix (a JSON list of 4 rows of 4 numbers)")
-    from neoedit.geometry import is_rigid
+    from neoedit.edit.motion import check_rigid
 
-    if not is_rigid(t):  # before the scene loads and the query runs
-        raise NeoError(
-            f"{path}: the transform must be a finite rigid motion (orthonormal rotation, "
-            f"det +1, last row 0 0 0 1); got {np.round(t, 4).tolist()}"
-        )
+    check_rigid(t, f"{path}: the transform")  # before the scene loads and the query runs
     return t
 
 

@@ -149,6 +149,15 @@ SAME_OBJECT_IOU = 0.5
 """Two motions of one edit whose source boxes overlap this much move the same object."""
 
 
+def check_rigid(transform: np.ndarray, where: str = "the transform") -> None:
+    """Refuse a (4,4) transform that is no finite rigid motion (``where`` names it)."""
+    if not is_rigid(transform):
+        raise NeoError(
+            f"{where} must be a finite rigid motion (orthonormal rotation, det +1, last row "
+            f"0 0 0 1); got {np.round(np.asarray(transform, dtype=np.float64), 4).tolist()}"
+        )
+
+
 def check_motions(scene: Scene, motions: list[Motion]) -> None:
     """Refuse non-rigid or non-finite transforms and targets outside the scene box."""
     if not motions:
@@ -163,11 +172,7 @@ def check_motions(scene: Scene, motions: list[Motion]) -> None:
                 )
     aabb = scene.field.aabb.cpu().numpy().astype(np.float64)  # printed: no float32 noise
     for m in motions:
-        if not is_rigid(m.transform):
-            raise NeoError(
-                "the transform must be a finite rigid motion (orthonormal rotation, det +1, "
-                f"last row 0 0 0 1); got {np.round(np.asarray(m.transform), 4).tolist()}"
-            )
+        check_rigid(m.transform)
         if np.allclose(m.transform, np.eye(4), atol=1e-6):
             raise NeoError("the motion is the identity: nothing would move")
         rot = np.asarray(m.transform)[:3, :3]

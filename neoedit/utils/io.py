@@ -400,8 +400,9 @@ def check_writable_output(
     ``out`` must not be, be inside or hold one of ``inputs``; an existing ``out`` must be a
     neoedit output of ``kind`` (or an empty folder; for kind 'json', a JSON file that is no
     dataset or scene metadata) and is replaced only with ``overwrite`` (``hint`` says
-    how to ask for that; ``option`` is the option that named ``out``, for messages); ``out`` must not lie inside a scene or a store; the folder it goes
-    to must be writable. Also removes what crashed runs left there.
+    how to ask for that; ``option``, the option that named ``out``, for messages); ``out``
+    must not lie inside a scene or a store; the folder it goes to must be writable. Also
+    removes what crashed runs left there.
     """
     out = Path(out)
     _check_not_input(out, inputs)
