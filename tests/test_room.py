@@ -170,6 +170,17 @@ def test_the_joint_distortion_pulls_light_split_between_box_and_room_into_one_of
     assert split > 0.1 and in_box == 0.0 and in_room == 0.0
 
 
+def _count_room_light(m: pytest.MonkeyPatch, calls: list[int]) -> None:
+    """Make ``outside.room_light`` record how many rays each of its calls samples."""
+    real = outside.room_light
+
+    def counting(room_, o, *args, **kwargs):
+        calls.append(len(o))
+        return real(room_, o, *args, **kwargs)
+
+    m.setattr(outside, "room_light", counting)
+
+
 def test_rays_the_box_stops_skip_the_room_only_where_none_of_it_can_show():
     """A camera inside the room's inner sphere sees no room in front of the box: on rays
     the box stops, the room is not sampled (nothing to add); the other rays get exactly the
@@ -182,16 +193,11 @@ def test_rays_the_box_stops_skip_the_room_only_where_none_of_it_can_show():
         dim=-1,
     )
     opaque = torch.tensor([True, False, True, False])
-    calls = []
-    real = outside.room_light
-
-    def counting(room_, o, *args, **kwargs):
-        calls.append(len(o))
-        return real(room_, o, *args, **kwargs)
-
+    calls: list[int] = []
     with torch.no_grad(), pytest.MonkeyPatch.context() as m:
-        m.setattr(outside, "room_light", counting)
+        _count_room_light(m, calls)
         full = outside_light(room, origins, directions, 0.05)
+        outside.MEMO.clear()  # else the hinted render takes every ray's light from the memo
         hinted = outside_light(room, origins, directions, 0.05, opaque=opaque)
     assert calls == [4, 3]  # the stopped ray from inside is not sampled
     seen = ~torch.tensor([True, False, False, False])
@@ -210,11 +216,11 @@ def test_no_room_sample_lands_in_the_box():
     seen = []
     original = outside._room_samples
 
-    def spy(room_, o, d, intervals, t_b, g_box, edges, density_only=False):
+    def spy(room_, o, d, intervals, t_b, g_box, edges, *args):
         mid = intervals.domain_to_t(0.5 * (edges[:, 1:] + edges[:, :-1]))
         t = unwarp(mid, t_b)
         seen.append(o[:, None, :] + t[..., None] * d[:, None, :])
-        return original(room_, o, d, intervals, t_b, g_box, edges, density_only)
+        return original(room_, o, d, intervals, t_b, g_box, edges, *args)
 
     outside._room_samples = spy
     try:

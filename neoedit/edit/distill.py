@@ -38,7 +38,7 @@ from neoedit.geometry.masks import box_pixels
 from neoedit.rendering.occupancy import OccupancyGrid
 from neoedit.rendering.renderer import RenderConfig, render_rays, sample_rays
 from neoedit.utils.fit import fit
-from neoedit.utils.optim import field_param_groups, make_adam
+from neoedit.utils.optim import field_param_groups, frozen, make_adam
 from neoedit.utils.progress import make_progress
 
 
@@ -276,7 +276,13 @@ def distill(
         return render_loss(out, target, cfg.lambda_depth)
 
     losses = {}
-    with make_progress() as progress:
+    # the background (a room, an environment map) is the parent's: it takes no gradient
+    # (its renders build no graph), unless a student holds it
+    students = {id(p) for part, _ in parts for p in part.parameters()}
+    own = isinstance(background, torch.nn.Module) and any(
+        id(p) in students for p in background.parameters()
+    )
+    with make_progress() as progress, frozen(None if own else background):
         for name, steps, fn in (
             ("field", cfg.field_steps, stage1),
             ("render", cfg.render_steps, stage2),

@@ -23,6 +23,7 @@ import torch
 from neoedit.fields.background import Background, background_colors
 from neoedit.fields.room import RoomField
 from neoedit.rendering.intervals import RayIntervals
+from neoedit.rendering.light_memo import MEMO, RoomLightEntry, ray_key
 from neoedit.rendering.samplers import pdf_edges, uniform_edges
 from neoedit.rendering.volume import distortion_loss, render_weights
 
@@ -136,16 +137,18 @@ VISIBLE_WEIGHT = 1e-4
 this (what no render can show is skipped)."""
 
 
-def _room_samples(room, origins, d, intervals, t_b, g_box, edges, density_only=False):
+def _room_samples(room, origins, d, intervals, t_b, g_box, edges, density_only=False, cached=False):
     """Bins ``edges`` (N, M+1) of the room domain -> sigma (N,M), rgb (N,M,3) (None when
-    ``density_only``), widths (N,M) [m] and the bins' warped coordinates (N,M)."""
+    ``density_only``), widths (N,M) [m] and the bins' warped coordinates (N,M); ``cached``
+    (with ``density_only``) reads the room's cached grid instead of its network."""
     n, m = edges.shape[0], edges.shape[1] - 1
     g_mid = intervals.domain_to_t(0.5 * (edges[:, 1:] + edges[:, :-1]))
     t_mid = unwarp(g_mid, t_b)
     deltas = (edges[:, 1:] - edges[:, :-1]) * warp_slope(t_mid, t_b)  # [m], at the midpoint
     points = (origins[:, None, :] + t_mid[..., None] * d[:, None, :]).reshape(-1, 3)
     if density_only:
-        return room.density_and_features(points)[0].reshape(n, m), None, deltas, g_mid
+        sigma = room.cached_density(points) if cached else room.density_and_features(points)[0]
+        return sigma.reshape(n, m), None, deltas, g_mid
     dirs = d[:, None, :].expand(n, m, 3).reshape(-1, 3)
     if torch.is_grad_enabled():
         sigma, rgb = room.query(points, dirs)
@@ -186,9 +189,15 @@ def room_light(
     d = directions / directions.norm(dim=-1, keepdim=True).clamp_min(1e-12)
     intervals, t_b, g_box = room_domain(room, origins, d, near_m)
     total = intervals.total
-    edges = uniform_edges(total, room.cfg.n_coarse_samples, jitter, generator)
+    # without gradients the coarse samples come from the cached grid; training queries the
+    # network
+    cached = not torch.is_grad_enabled() and room.cfg.grid_resolution > 0
+    n_coarse = room.cfg.grid_samples if cached else room.cfg.n_coarse_samples
+    edges = uniform_edges(total, n_coarse, jitter, generator)
     with torch.no_grad():
-        sigma, _, deltas, _ = _room_samples(room, origins, d, intervals, t_b, g_box, edges, True)
+        sigma, _, deltas, _ = _room_samples(
+            room, origins, d, intervals, t_b, g_box, edges, True, cached
+        )
         weights = render_weights(sigma, deltas)
     fine = pdf_edges(edges, weights, room.cfg.n_samples, jitter, generator)
     fine[:, 0], fine[:, -1] = 0.0, total  # the whole domain, jittered or not
@@ -241,12 +250,23 @@ def outside_light(
     at its stopping threshold): what lies behind the box cannot show on them, so the room
     is not sampled on those that also have no room in front of the box (a camera inside the
     room's inner sphere, as in every capture walked around a table); their light from
-    behind is taken as black, an error of at most the threshold times the room's colour."""
+    behind is taken as black, an error of at most the threshold times the room's colour.
+
+    A room this render does not train (no gradients, or frozen weights) and no ``jitter``
+    give the same light every time: its light on a chunk of rays is kept for the next render
+    of those rays (:mod:`~neoedit.rendering.light_memo`), and its coarse samples come from
+    its cached grid when it has one (``grid_resolution``)."""
     if isinstance(background, RoomField):
-        if opaque is not None and not torch.is_grad_enabled():
+        if jitter or _trains(background):
+            return room_light(background, origins, directions, near_m, jitter, generator)
+        with torch.no_grad():  # the room's light is a constant here, even in an edit's loss
             return _room_light_where_seen(background, origins, directions, near_m, opaque)
-        return room_light(background, origins, directions, near_m, jitter, generator)
     return OutsideLight(0.0, 1.0, background_colors(background, origins, directions))
+
+
+def _trains(room: RoomField) -> bool:
+    """Whether this render may train the room (gradients on and its weights want them)."""
+    return torch.is_grad_enabled() and any(p.requires_grad for p in room.parameters())
 
 
 def _room_light_where_seen(
@@ -254,22 +274,36 @@ def _room_light_where_seen(
     origins: torch.Tensor,
     directions: torch.Tensor,
     near_m: float,
-    opaque: torch.Tensor,
+    opaque: torch.Tensor | None,
 ) -> OutsideLight:
-    """:func:`room_light` on the rays where some of the room can show (see
-    :func:`outside_light`); nothing on the others."""
-    d = directions / directions.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-    intervals, _, _ = room_domain(room, origins, d, near_m)
-    seen = ~(opaque & (intervals.lengths[:, 0] <= 0.0))
-    if bool(seen.all()):
-        return room_light(room, origins, directions, near_m)
+    """:func:`room_light` on the rays where some of the room can show (all of them without
+    ``opaque``; see :func:`outside_light`), nothing on the others; what an earlier render
+    of the same rays computed is taken from :data:`~neoedit.rendering.light_memo.MEMO`."""
     n = len(origins)
-    front_rgb = origins.new_zeros(n, 3)
-    front_trans = origins.new_ones(n)
-    back_rgb = origins.new_zeros(n, 3)
-    if bool(seen.any()):
-        part = room_light(room, origins[seen], directions[seen], near_m)
-        front_rgb[seen] = torch.as_tensor(part.front_rgb, dtype=front_rgb.dtype)
-        front_trans[seen] = torch.as_tensor(part.front_trans, dtype=front_trans.dtype)
-        back_rgb[seen] = part.back_rgb
-    return OutsideLight(front_rgb, front_trans, back_rgb)
+    seen = torch.ones(n, dtype=torch.bool, device=origins.device)
+    if opaque is not None:
+        d = directions / directions.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+        intervals, _, _ = room_domain(room, origins, d, near_m)
+        seen = ~(opaque & (intervals.lengths[:, 0] <= 0.0))
+    key = ray_key(room.weights_key(), repr(room.cfg), origins, directions, near_m)
+    entry = MEMO.lookup(key)
+    if entry is None or entry.done.device != origins.device:
+        entry = RoomLightEntry.empty(n, origins.device)
+    need = seen & ~entry.done
+    if bool(need.any()):
+        part = room_light(room, origins[need], directions[need], near_m)
+        entry.front_rgb[need] = torch.as_tensor(part.front_rgb, dtype=entry.front_rgb.dtype)
+        entry.front_trans[need] = torch.as_tensor(part.front_trans, dtype=entry.front_trans.dtype)
+        entry.back_rgb[need] = part.back_rgb
+        entry.done |= need
+        MEMO.store(key, entry)
+    if bool(seen.all()):
+        return OutsideLight(
+            entry.front_rgb.clone(), entry.front_trans.clone(), entry.back_rgb.clone()
+        )
+    s = seen[:, None]
+    return OutsideLight(
+        torch.where(s, entry.front_rgb, 0.0),
+        torch.where(seen, entry.front_trans, 1.0),
+        torch.where(s, entry.back_rgb, 0.0),
+    )

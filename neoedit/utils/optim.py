@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -19,6 +21,22 @@ def fused_adam_kwargs(device: torch.device | str) -> dict[str, bool]:
     except (RuntimeError, TypeError, ValueError):
         return {"foreach": True}
     return {"fused": True}
+
+
+@contextlib.contextmanager
+def frozen(module: object) -> Iterator[None]:
+    """Within the block ``module``'s parameters (when it is a torch module) take no
+    gradients, so renders through it build no graph for them; their flags come back after."""
+    params = []
+    if isinstance(module, torch.nn.Module):
+        params = [p for p in module.parameters() if p.requires_grad]
+    for p in params:
+        p.requires_grad_(False)
+    try:
+        yield
+    finally:
+        for p in params:
+            p.requires_grad_(True)
 
 
 def make_adam(
