@@ -351,7 +351,6 @@ CASES = [
     C("diff-zero-views", "diff {scene} a b --views 0", 2, "--views must be >= 1, got 0"),
     C("query-huge-image-scale", "query {scene} mug --image-scale 1000", 2, "--image-scale must be in (0, 4], got 1000"),
     C("train-room-on-rgba", "train {data} --out s --field.room True " + TRAIN, 2, "transparent backgrounds"),
-    C("train-room-grid-negative", "train {data} --out s --field.room True --field.room-field.grid-resolution -1 " + TRAIN, 2, "--field.room-field.grid-resolution = -1 is out of range [0, 256]"),
     C("train-room-closed-bottom", "train {data} --out s --field.room True --field.closed-bottom " + TRAIN, 2, "rules out --field.closed-bottom"),
     C("train-no-overwrite-option", "train {data} --out s --overwrite " + TRAIN, 2, "neo train has no --overwrite"),
     C("train-out-store", "train {data} --out st " + TRAIN, 2, "is a scene store", write("st/store.json", {"format": "neoedit.store/1", "current": None})),

@@ -8,9 +8,6 @@ contracted as mip-NeRF 360 does (``|y| <= 1`` kept, farther points mapped to
 the floor next to the table share one bounded hash grid. Past the farthest sample, a
 direction-only environment map (:class:`~neoedit.fields.background.DirectionalBackground`)
 gives what is at infinity. :mod:`neoedit.rendering.outside` renders the room around the box.
-Optionally (``grid_resolution``), renders that do not train the room draw its coarse samples from
-a cached density grid over the contracted cube (built on first use, dropped when the weights
-change): 128 lookups along a ray instead of 32 network queries.
 """
 
 from __future__ import annotations
@@ -63,27 +60,10 @@ class RoomConfig:
     opacity over the object's masks: 0.60 with 0, 0.64 with 1, 0.54 with 10 (the object
     pushed into the room behind the box); PSNR unchanged (19.2 dB unedited, 20.9 removed).
     Off by default: it does not keep a forward-facing capture's object in the box."""
-    grid_resolution: int = 0
-    """Cells per axis of the room's cached density grid over the contracted space (0: none,
-    the default). With one, renders that do not train the room draw their coarse samples
-    from it instead of the network (the room is ~70 % of a view's time on a real capture).
-    Measured on beer_can (5-minute room field, 9 held-out views, alone): 128 cells, 2
-    probes, 128 samples: 28.265 dB vs 28.300 dB and 0-13 % faster views; 64 cells: 28.242
-    dB. Off until it is clearly faster: the render would differ from training's sampler."""
-    grid_probes: int = 2
-    """Points per cell whose largest density the grid keeps (the centre and jittered ones)."""
-    grid_samples: int = 128
-    """Coarse samples per ray read from the cached grid (they cost a lookup each)."""
     density_bias: float = -6.0
     """Offset of the pre-activation of the room's density (softplus, per metre): low, but
     over the hundreds of metres to the far plane the room starts opaque far out (the
     environment map shows only where it stays empty)."""
-
-
-def uncontract(c: torch.Tensor) -> torch.Tensor:
-    """Inverse of :func:`contract` for points (N,3) with ``|c| < 2``."""
-    norm = c.norm(dim=-1, keepdim=True).clamp_min(1e-9)
-    return torch.where(norm <= 1.0, c, c / (norm * (2.0 - norm).clamp_min(1e-6)))
 
 
 def contract(y: torch.Tensor) -> torch.Tensor:
@@ -99,7 +79,6 @@ class RoomField(nn.Module):
 
     center: torch.Tensor  # (3,)
     radius: torch.Tensor  # () half the box diagonal [m]
-    grid: torch.Tensor  # (R,R,R) cached density [1/m], or empty (not built / stale)
 
     def __init__(self, cfg: RoomConfig, aabb: torch.Tensor, seed: int = 0):
         super().__init__()
@@ -119,15 +98,12 @@ class RoomField(nn.Module):
         self.environment = DirectionalBackground(hidden_dim=32)
         self.revision = next(_REVISIONS)
         self._versions = self._param_versions()
-        # the cached density grid (R,R,R) over the contracted cube; empty until a render
-        # without gradients needs it, dropped when the weights change
-        self.register_buffer("grid", torch.zeros(0), persistent=False)
 
     def _param_versions(self) -> tuple[int, ...]:
         return tuple(p._version for p in self.parameters())
 
     def weights_key(self) -> int:
-        """A number naming the current weights, the key of the cached grid and of
+        """A number naming the current weights, the key of
         :mod:`neoedit.rendering.light_memo`: renewed when any parameter was changed in place
         since it was issued (an optimiser step, a load; torch counts them), kept by a deep
         copy (the same weights)."""
@@ -135,7 +111,6 @@ class RoomField(nn.Module):
         if versions != self._versions:
             self._versions = versions
             self.revision = next(_REVISIONS)
-            self.grid = self.grid.new_zeros(0)
         return self.revision
 
     def __deepcopy__(self, memo: dict) -> RoomField:
@@ -144,52 +119,13 @@ class RoomField(nn.Module):
         memo[id(self)] = new
         new.__setstate__(copy.deepcopy(self.__dict__, memo))
         new._versions = new._param_versions()  # fresh tensors count from their own start
-        new._buffers["grid"] = self.grid  # derived from the same weights; never written in place
         return new
-
-    def _unit(self, points: torch.Tensor) -> torch.Tensor:
-        """World points (N,3) -> the contracted cube [0, 1]^3."""
-        return (contract((points - self.center) / self.radius) + 2.0) / 4.0
-
-    @torch.no_grad()
-    def cached_density(self, points: torch.Tensor) -> torch.Tensor:
-        """The grid's density (N,) [1/m] at world points (N,3): the largest the network gave
-        at the probes of each point's cell (the grid is built on first use)."""
-        self.weights_key()
-        grid = self.grid  # one read: another thread may replace it
-        r = self.cfg.grid_resolution
-        if grid.shape != (r, r, r) or grid.device != points.device:
-            grid = self._build_grid()
-            self.grid = grid
-        ijk = (self._unit(points).clamp(0.0, 1.0 - 1e-6) * r).long()
-        return grid[ijk[:, 0], ijk[:, 1], ijk[:, 2]]
-
-    def _build_grid(self, chunk: int = 1 << 18) -> torch.Tensor:
-        r, device = self.cfg.grid_resolution, self.center.device
-        axis = torch.arange(r, device=device, dtype=torch.float32)
-        ijk = torch.stack(torch.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
-        gen = torch.Generator(device=device).manual_seed(0)
-        best = torch.zeros(len(ijk), device=device)
-        for k in range(max(self.cfg.grid_probes, 1)):
-            offset = 0.5 if k == 0 else torch.rand(ijk.shape, device=device, generator=gen)
-            c = (ijk + offset) / r * 4.0 - 2.0
-            # the contracted world is the ball |c| < 2: a probe in a corner cell is moved
-            # onto the ball's edge (points far out fall in such cells too)
-            c = c * ((2.0 - 1e-4) / c.norm(dim=-1, keepdim=True).clamp_min(1e-9)).clamp(max=1.0)
-            points = self.center + self.radius * uncontract(c)
-            dens = torch.cat(
-                [
-                    self.density_and_features(points[i : i + chunk])[0]
-                    for i in range(0, len(points), chunk)
-                ]
-            )
-            best = torch.maximum(best, dens.float())
-        return best.reshape(r, r, r)
 
     def density_and_features(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """sigma (N,) [1/m] and geometry features (N,15) at world points (N,3). The density
         is a softplus in units of 10 per box radius: it starts low and is smooth."""
-        h = self.density_mlp(self.encoding(self._unit(points)))
+        u = (contract((points - self.center) / self.radius) + 2.0) / 4.0
+        h = self.density_mlp(self.encoding(u))
         return nn.functional.softplus(h[:, 0] + self.cfg.density_bias) * (10.0 / self.radius), h[
             :, 1:
         ]

@@ -137,18 +137,16 @@ VISIBLE_WEIGHT = 1e-4
 this (what no render can show is skipped)."""
 
 
-def _room_samples(room, origins, d, intervals, t_b, g_box, edges, density_only=False, cached=False):
+def _room_samples(room, origins, d, intervals, t_b, g_box, edges, density_only=False):
     """Bins ``edges`` (N, M+1) of the room domain -> sigma (N,M), rgb (N,M,3) (None when
-    ``density_only``), widths (N,M) [m] and the bins' warped coordinates (N,M); ``cached``
-    (with ``density_only``) reads the room's cached grid instead of its network."""
+    ``density_only``), widths (N,M) [m] and the bins' warped coordinates (N,M)."""
     n, m = edges.shape[0], edges.shape[1] - 1
     g_mid = intervals.domain_to_t(0.5 * (edges[:, 1:] + edges[:, :-1]))
     t_mid = unwarp(g_mid, t_b)
     deltas = (edges[:, 1:] - edges[:, :-1]) * warp_slope(t_mid, t_b)  # [m], at the midpoint
     points = (origins[:, None, :] + t_mid[..., None] * d[:, None, :]).reshape(-1, 3)
     if density_only:
-        sigma = room.cached_density(points) if cached else room.density_and_features(points)[0]
-        return sigma.reshape(n, m), None, deltas, g_mid
+        return room.density_and_features(points)[0].reshape(n, m), None, deltas, g_mid
     dirs = d[:, None, :].expand(n, m, 3).reshape(-1, 3)
     if torch.is_grad_enabled():
         sigma, rgb = room.query(points, dirs)
@@ -189,15 +187,9 @@ def room_light(
     d = directions / directions.norm(dim=-1, keepdim=True).clamp_min(1e-12)
     intervals, t_b, g_box = room_domain(room, origins, d, near_m)
     total = intervals.total
-    # without gradients the coarse samples come from the cached grid; training queries the
-    # network
-    cached = not torch.is_grad_enabled() and room.cfg.grid_resolution > 0
-    n_coarse = room.cfg.grid_samples if cached else room.cfg.n_coarse_samples
-    edges = uniform_edges(total, n_coarse, jitter, generator)
+    edges = uniform_edges(total, room.cfg.n_coarse_samples, jitter, generator)
     with torch.no_grad():
-        sigma, _, deltas, _ = _room_samples(
-            room, origins, d, intervals, t_b, g_box, edges, True, cached
-        )
+        sigma, _, deltas, _ = _room_samples(room, origins, d, intervals, t_b, g_box, edges, True)
         weights = render_weights(sigma, deltas)
     fine = pdf_edges(edges, weights, room.cfg.n_samples, jitter, generator)
     fine[:, 0], fine[:, -1] = 0.0, total  # the whole domain, jittered or not
@@ -254,8 +246,7 @@ def outside_light(
 
     A room this render does not train (no gradients, or frozen weights) and no ``jitter``
     give the same light every time: its light on a chunk of rays is kept for the next render
-    of those rays (:mod:`~neoedit.rendering.light_memo`), and its coarse samples come from
-    its cached grid when it has one (``grid_resolution``)."""
+    of those rays (:mod:`~neoedit.rendering.light_memo`)."""
     if isinstance(background, RoomField):
         if jitter or _trains(background):
             return room_light(background, origins, directions, near_m, jitter, generator)

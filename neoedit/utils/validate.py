@@ -42,9 +42,6 @@ BOUNDS: dict[str, tuple[float | None, float | None]] = {
     "far_factor": (1.0, None),
     "joint_distortion": (0.0, None),
     "warmup": (0.0, 0.9),  # the room must train for a while before renders use it
-    "grid_resolution": (0, 256),  # the room's cached grid (0: none); 256^3 floats = 64 MB
-    "grid_probes": (1, 64),
-    "grid_samples": (1, 1 << 14),
     "port": (1, 65535),
 }
 _DEVICE_RE = re.compile(r"^(auto|cpu|mps|cuda(:\d+)?)$")
