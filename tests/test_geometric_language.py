@@ -31,7 +31,6 @@ from neoedit.language.relevancy import CANONICAL_PHRASES, relevancy
 from neoedit.language.text import TextEncoderSpec, load_text_encoder
 from neoedit.language.training import LanguageTrainConfig, resolve_teacher, train_language
 from neoedit.scene import load_scene, save_scene
-from neoedit.utils.validate import check_language_options
 
 WOOD, RED, BLUE, WHITE = (200, 175, 140), (190, 30, 30), (30, 60, 200), (235, 235, 235)
 
@@ -240,13 +239,13 @@ def test_teacher_choice():
     assert resolve_teacher(geo, _data(labels=True)) == "geometric"  # type: ignore[arg-type]
     with pytest.raises(NeoError, match="unknown language teacher"):
         resolve_teacher(LanguageTrainConfig(teacher="magic"), _data(True))  # type: ignore[arg-type]
-    check_language_options(geo)
+    geo.check()
     bad = LanguageTrainConfig(teacher="geometric", geometric=GeometricConfig(eps_m=-1.0))
     with pytest.raises(NeoError, match="eps-m must be > 0"):
-        check_language_options(bad)
+        bad.check()
     bad = LanguageTrainConfig(geometric=GeometricConfig(inlier_m=0.02, above_m=0.01))
     with pytest.raises(NeoError, match="above-m"):
-        check_language_options(bad)
+        bad.check()
 
 
 def test_geometric_teacher_on_a_tiny_trained_scene(trained: Path, sim_root: Path, tmp_path: Path):

@@ -17,7 +17,6 @@ rendered depth at each update like the colour. 'nerfiller-no-depth' has no depth
 from __future__ import annotations
 
 import dataclasses
-import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -307,21 +306,21 @@ def _retrain(
     timings["render_s"] = 0.0
     trainer = Trainer(inpainted, child, train_cfg, None, child.field.aabb.device)
     update_at = {round(k * steps / rounds): k for k in range(1, rounds)}
-    t_train, ema, k = 0.0, 1.0, 0
+    training, ema, k = Timings(), 1.0, 0  # the steps alone: the trainer's clock
     with make_progress() as progress:
         task = progress.add_task("nerfiller", total=steps, status="")
         for step in range(steps):
             if step in update_at:
                 k = update_at[step]
                 _update_dataset(trainer, views, inpainter, xis[k], timings)
-            t0 = time.perf_counter()
-            mse = trainer.step(step, t_train)
-            t_train += time.perf_counter() - t0
+            with training.stage("train"):
+                mse = trainer.step(step, training.get("train_s", 0.0))
             ema = mse if step == 0 else 0.9 * ema + 0.1 * mse
             status = f"round {k + 1}/{rounds} xi {xis[k]:.2f} | PSNR {psnr(ema):5.2f} dB"
             progress.update(task, completed=step + 1, status=status)
     trainer.finish_grid()
-    timings["train_s"] = round(t_train, 2)
+    timings.merge(training)
+    t_train = training.get("train_s", 0.0)
     meta = child.meta
     meta.train, meta.step, meta.train_seconds = dataclasses.asdict(train_cfg), steps, t_train
     meta.history = [

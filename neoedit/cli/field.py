@@ -83,8 +83,8 @@ class TrainCommand:
 
     def check(self) -> None:
         """Everything that can be refused before the data is read and training starts."""
+        from neoedit.training.checks import check_train_options
         from neoedit.utils.io import check_writable_output
-        from neoedit.utils.validate import check_train_options
 
         language = None if self.skip_language else self.language
         self.data_cfg.check()

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -30,6 +31,7 @@ from neoedit.rendering.surface import render_surface
 from neoedit.scene import LanguageMeta, Scene
 from neoedit.utils.fit import fit
 from neoedit.utils.optim import make_adam
+from neoedit.utils.validate import finite_number, is_int, require, shorten
 
 
 @dataclass
@@ -58,6 +60,31 @@ class LanguageTrainConfig:
     seed: int = 0
     geometric: GeometricConfig = field(default_factory=GeometricConfig)
     """Object discovery of the geometric teacher."""
+
+    def check(self) -> None:
+        """Refuse settings the language training cannot run with (before any data is read)."""
+        require(
+            self.teacher in TEACHERS,
+            "--language.teacher must be auto, labels, clip or geometric, got "
+            f"{shorten(self.teacher)!r}",
+        )
+        self.geometric.check()
+        for name in ("rays", "batch", "max_surface_points"):
+            require(
+                is_int(getattr(self, name), 1), f"--language.{name.replace('_', '-')} must be >= 1"
+            )
+        require(is_int(self.steps, 0), "--language.steps must be >= 0")
+        require(finite_number(self.lr) and self.lr > 0, "--language.lr must be > 0")
+        require(
+            finite_number(self.min_accumulation) and 0 <= self.min_accumulation <= 1,
+            "--language.min-accumulation must be in [0, 1]",
+        )
+        for name in ("text_path", "clip_path", "dino_path"):
+            value = getattr(self, name)
+            require(
+                value is None or Path(value).exists(),
+                f"--language.{name.replace('_', '-')} {shorten(value)} does not exist",
+            )
 
 
 TEACHERS = ("auto", "labels", "clip", "geometric")

@@ -18,7 +18,7 @@ from neoedit.rendering.occupancy import OccupancyGridConfig
 from neoedit.rendering.renderer import RenderConfig
 from neoedit.scene import Scene
 from neoedit.utils.options import flag
-from neoedit.utils.validate import check_memory
+from neoedit.utils.validate import check_config, check_memory, finite_number, is_int, require
 
 
 def fingerprint(data: SceneData, frames: int = 8) -> dict[str, list[list[float]]]:
@@ -128,3 +128,40 @@ def check_finite_weights(field: torch.nn.Module, steps: int) -> None:
                 f"training diverged by step {steps}: the weights {name!r} are no longer finite "
                 "numbers; lower --lr or the loss weights"
             )
+
+
+def check_train_options(
+    train: Any, field: Any, grid: Any, render: Any, language: Any, resume: bool
+) -> None:
+    """Options of ``neo train`` that cannot work (checked before any data is read)."""
+    first = 0 if resume else 1
+    require(
+        is_int(train.max_steps, first),
+        f"--max-steps must be at least {first}, got {train.max_steps}",
+    )
+    require(
+        train.max_minutes is None or (finite_number(train.max_minutes) and train.max_minutes > 0),
+        f"--max-minutes must be a positive number of minutes, got {train.max_minutes}",
+    )
+    for name in ("rays_per_batch", "sparsity_points"):
+        require(is_int(getattr(train, name), 1), f"--{name.replace('_', '-')} must be at least 1")
+    for name in ("eval_every", "eval_views", "checkpoint_every", "sparse_depth_rays"):
+        require(is_int(getattr(train, name), 0), f"--{name.replace('_', '-')} must be >= 0")
+    for name in ("lr", "lr_final_factor"):
+        value = getattr(train, name)
+        require(finite_number(value) and value > 0, f"--{name.replace('_', '-')} must be > 0")
+    for name in (
+        "weight_decay_mlp",
+        "distortion_loss_weight",
+        "mlp_lr_factor",
+        "sparse_opacity_weight",
+    ):
+        value = getattr(train, name)
+        require(finite_number(value) and value >= 0, f"--{name.replace('_', '-')} must be >= 0")
+    for name in ("sparsity_loss_weight", "depth_loss_weight"):
+        require(finite_number(getattr(train, name)), f"--{name.replace('_', '-')} must be finite")
+    check_config(field, "--field")
+    check_config(grid, "--grid")
+    check_config(render, "--render")
+    if language is not None:
+        language.check()

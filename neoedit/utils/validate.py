@@ -6,7 +6,6 @@ from __future__ import annotations
 import dataclasses
 import math
 import re
-from pathlib import Path
 from typing import Any
 
 import torch
@@ -161,72 +160,12 @@ def check_config(cfg: Any, where: str) -> None:
         raise NeoError(f"{where}.max-resolution must be at least {where}.base-resolution")
 
 
-def _require(ok: bool, message: str) -> None:
+def require(ok: bool, message: str) -> None:
+    """Raise ``message`` as a NeoError unless ``ok``."""
     if not ok:
         raise NeoError(message)
 
 
-def _is_int(value: Any, lo: int) -> bool:
+def is_int(value: Any, lo: int) -> bool:
+    """``value`` is an int (not a bool) of at least ``lo``."""
     return isinstance(value, int) and not isinstance(value, bool) and value >= lo
-
-
-def check_train_options(
-    train: Any, field: Any, grid: Any, render: Any, language: Any, resume: bool
-) -> None:
-    """Options of ``neo train`` that cannot work (checked before any data is read)."""
-    first = 0 if resume else 1
-    _require(
-        _is_int(train.max_steps, first),
-        f"--max-steps must be at least {first}, got {train.max_steps}",
-    )
-    _require(
-        train.max_minutes is None or (finite_number(train.max_minutes) and train.max_minutes > 0),
-        f"--max-minutes must be a positive number of minutes, got {train.max_minutes}",
-    )
-    for name in ("rays_per_batch", "sparsity_points"):
-        _require(_is_int(getattr(train, name), 1), f"--{name.replace('_', '-')} must be at least 1")
-    for name in ("eval_every", "eval_views", "checkpoint_every", "sparse_depth_rays"):
-        _require(_is_int(getattr(train, name), 0), f"--{name.replace('_', '-')} must be >= 0")
-    for name in ("lr", "lr_final_factor"):
-        value = getattr(train, name)
-        _require(finite_number(value) and value > 0, f"--{name.replace('_', '-')} must be > 0")
-    for name in (
-        "weight_decay_mlp",
-        "distortion_loss_weight",
-        "mlp_lr_factor",
-        "sparse_opacity_weight",
-    ):
-        value = getattr(train, name)
-        _require(finite_number(value) and value >= 0, f"--{name.replace('_', '-')} must be >= 0")
-    for name in ("sparsity_loss_weight", "depth_loss_weight"):
-        _require(finite_number(getattr(train, name)), f"--{name.replace('_', '-')} must be finite")
-    check_config(field, "--field")
-    check_config(grid, "--grid")
-    check_config(render, "--render")
-    if language is not None:
-        check_language_options(language)
-
-
-def check_language_options(cfg: Any) -> None:
-    _require(
-        cfg.teacher in ("auto", "labels", "clip", "geometric"),
-        f"--language.teacher must be auto, labels, clip or geometric, got {shorten(cfg.teacher)!r}",
-    )
-    if hasattr(cfg, "geometric"):
-        cfg.geometric.check()
-    for name in ("rays", "batch", "max_surface_points"):
-        _require(
-            _is_int(getattr(cfg, name), 1), f"--language.{name.replace('_', '-')} must be >= 1"
-        )
-    _require(_is_int(cfg.steps, 0), "--language.steps must be >= 0")
-    _require(finite_number(cfg.lr) and cfg.lr > 0, "--language.lr must be > 0")
-    _require(
-        finite_number(cfg.min_accumulation) and 0 <= cfg.min_accumulation <= 1,
-        "--language.min-accumulation must be in [0, 1]",
-    )
-    for name in ("text_path", "clip_path", "dino_path"):
-        value = getattr(cfg, name)
-        _require(
-            value is None or Path(value).exists(),
-            f"--language.{name.replace('_', '-')} {shorten(value)} does not exist",
-        )
