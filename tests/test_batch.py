@@ -198,6 +198,9 @@ def test_a_batch_step_of_a_plan_is_one_version(move_scene: Path, objects, tmp_pa
         ({"type": "batch", "edits": [{"type": "move", "prompt": "a"}]}, "step 1: edits.0: .*needs a motion"),
         ({"type": "batch", "edits": [{"type": "grasp", "prompt": "a"}]}, "edits.0.type: .*'move' or 'remove'$"),
         ({"type": "move", "prompt": "a", "translate": [0.1, 0, 0]}, "translate: unknown key \\(did you mean 'translate_m'"),
+        # one object twice in a batch: refused when the plan is read, not after step 1 ran
+        ({"type": "batch", "edits": [{"type": "move", "prompt": "mug", "translate_m": [0.01, 0, 0]}, {"type": "move", "prompt": " Mug", "translate_m": [0.02, 0, 0]}]}, "step 1: edits 1 and 2 both name 'mug'"),
+        ({"type": "batch", "edits": [{"type": "remove", "prompt": "duck; mug"}, {"type": "move", "prompt": "mug", "translate_m": [0.02, 0, 0]}]}, "edits 1 and 2 both name 'mug'"),
     ],
 )  # fmt: skip
 def test_a_malformed_batch_step_is_refused_with_its_step(step: dict, message: str):

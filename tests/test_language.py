@@ -295,13 +295,28 @@ def test_query_cli(language_scene: Path, tmp_path: Path, capsys):
     assert (
         main(["query", str(language_scene), "quantum chromodynamics lecture", "--views", "0"]) == 1
     )
-    assert "no object matched" in capsys.readouterr().out
+    said = capsys.readouterr()
+    assert "error: no object matched" in said.err and "no object matched" not in said.out
+    # several prompts, one missed: the JSON keeps the found box, null for the miss
+    both = tmp_path / "both.json"
+    cmd = ["query", str(language_scene), "red mug; quantum chromodynamics lecture", "--views", "0"]
+    tuned = [
+        "--query.min-cluster-points",
+        "10",
+        "--query.min-samples",
+        "4",
+        "--query.eps-m",
+        "0.03",
+    ]
+    assert main([*cmd, *tuned, "--json", str(both)]) == 1
+    found_box, missed = json.loads(both.read_text())
+    assert missed is None and found_box["center"] == box["center"]
     # a miss still pictures where its prompt scored (a relevancy map, no box)
     miss = ["query", str(language_scene), "quantum chromodynamics lecture", "--views", "2"]
     assert main([*miss, "--image-scale", "1", "--out", str(tmp_path / "miss")]) == 1
     found = iio.imread(tmp_path / "pics" / "query.png")
     assert iio.imread(tmp_path / "miss" / "query.png").shape == found.shape  # render | map
-    assert "no object matched" in capsys.readouterr().out
+    assert "no object matched" in capsys.readouterr().err
     assert main(["query", str(language_scene), " ; "]) == 2
     assert "empty prompt" in capsys.readouterr().err
 

@@ -32,7 +32,8 @@ class QueryCommand:
     prompt: tyro.conf.Positional[str]
     """What to find, e.g. "red mug" or "red mug; duck"."""
     json: Path | None = None
-    """Also write the box (one prompt) or the list of boxes (several) to this file."""
+    """Also write the box (one prompt; no file when it matches nothing) or the list of boxes
+    (several prompts: one entry each, in order, null where a prompt matched nothing)."""
     out: Path | None = None
     """Folder for query.png (default: a new outputs/query/<scene name>-<prompt>[-N])."""
     views: int = 3
@@ -64,25 +65,29 @@ class QueryCommand:
         if scene.meta.language is None:
             raise NeoError(f"{self.scene} has no language field (train it on data with a teacher)")
         text = load_text_encoder(scene.meta.language.text)
-        results, misses = [], []
+        results, misses, found = [], [], []
         for prompt in prompts:
             try:
                 results.append(query_scene(scene, prompt, text, self.query))
+                found.append(results[-1].to_dict())
             except NoMatch as e:
                 misses.append(e)
-        boxes = [r.to_dict() for r in results]
-        for box in boxes:
-            console.print_json(json.dumps(box))
+                found.append(None)
+        for box in found:
+            if box is not None:
+                console.print_json(json.dumps(box))
         if self.views:  # a prompt that matched nothing too: where it scored, without a box
             path = self._pictures(scene, results, prompts, text)
             if path is not None:
                 console.print(f"wrote {escape(str(path))}")
+        if self.json is not None and (len(prompts) > 1 or not misses):
+            # several prompts: one entry each, in order, null where nothing matched
+            atomic_write_json(self.json, found[0] if len(prompts) == 1 else found)
         if misses:
+            err = Console(stderr=True)
             for miss in misses:
-                console.print(f"[bold red]{user_message(miss)}[/]", highlight=False)
+                err.print(f"[bold red]error:[/] {user_message(miss)}", highlight=False)
             raise SystemExit(1)
-        if self.json is not None:
-            atomic_write_json(self.json, boxes[0] if len(boxes) == 1 else boxes)
 
     def _pictures(self, scene, results, prompts, text) -> Path | None:
         from neoedit.language.report import write_query_images

@@ -137,6 +137,15 @@ class Action(BaseModel):
             raise ValueError("a batch lists its edits: edits: [{type: remove, ...}, ...]")
         if any(e.type == "batch" for e in self.edits):
             raise ValueError("a batch holds moves and removals, not batches")
+        named: dict[str, int] = {}  # the edits of a batch must touch separate places
+        for k, e in enumerate(self.edits, 1):
+            for name in {" ".join(p.casefold().split()) for p in split_prompts(e.prompt or "")}:
+                if name in named:
+                    raise ValueError(
+                        f"edits {named[name]} and {k} both name {name!r}: a batch edits each "
+                        "object once (give a move several motions, or make two steps)"
+                    )
+                named[name] = k
         return self
 
     @property
