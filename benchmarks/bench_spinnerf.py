@@ -54,7 +54,8 @@ def run(cmd: list[str], no_match_ok: bool = False) -> float:
     print("$", shlex.join(cmd[2:] if cmd[:2] == [sys.executable, "-m"] else cmd), flush=True)
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, capture_output=True, text=True)
-    no_match = no_match_ok and proc.returncode == 1 and "no object matched" in proc.stdout
+    said = proc.stdout + proc.stderr  # neo query says "error: no object matched" on stderr
+    no_match = no_match_ok and proc.returncode == 1 and "no object matched" in said
     if proc.returncode != 0 and not no_match:
         sys.exit(f"failed ({proc.returncode}):\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")
     return time.perf_counter() - t0
@@ -106,6 +107,7 @@ def by_prompt(scene: Path, data: Path, out: Path, prompt: str, margin: float) ->
     resume = neo("train", str(data), "--out", str(lang), "--resume", "--max-steps", "1", "--quiet")
     result["language_seconds"] = round(run(resume), 1)
     query = neo("query", str(lang), prompt, "--json", str(found), "--out", str(out / "query"))
+    found.unlink(missing_ok=True)  # an earlier run's box must not read as this run's match
     result["query_seconds"] = round(run([*query, "--overwrite"], no_match_ok=True), 1)
     if not found.is_file():  # exit 1: nothing matched the prompt
         return {**result, "matched": False}

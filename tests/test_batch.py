@@ -201,6 +201,7 @@ def test_a_batch_step_of_a_plan_is_one_version(move_scene: Path, objects, tmp_pa
         # one object twice in a batch: refused when the plan is read, not after step 1 ran
         ({"type": "batch", "edits": [{"type": "move", "prompt": "mug", "translate_m": [0.01, 0, 0]}, {"type": "move", "prompt": " Mug", "translate_m": [0.02, 0, 0]}]}, "step 1: edits 1 and 2 both name 'mug'"),
         ({"type": "batch", "edits": [{"type": "remove", "prompt": "duck; mug"}, {"type": "move", "prompt": "mug", "translate_m": [0.02, 0, 0]}]}, "edits 1 and 2 both name 'mug'"),
+        ({"type": "move", "prompt": "mug; MUG", "translate_m": [0.02, 0, 0]}, "step 1: the prompt names 'mug' twice"),
     ],
 )  # fmt: skip
 def test_a_malformed_batch_step_is_refused_with_its_step(step: dict, message: str):

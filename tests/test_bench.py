@@ -331,8 +331,15 @@ def test_small_bench_fills_every_table_with_finite_numbers(small_run):
     # where the object stood, the removal shows the table as the ring around it shows it
     footprint = {m: units[f"removal_1/{m}"]["result"]["footprint_delta"] for m in out_psnr}
     assert footprint["neo"] < 0.5 * footprint["pre-edit"], footprint
-    moved = units["pick_place_1/neo"]["result"]
-    assert moved["out"]["psnr"] > units["pick_place_1/pre-edit"]["result"]["out"]["psnr"] + 3
+    # the move: NEO's inpainted source beats leaving the hole (the preview, the Seal-3D-style
+    # baseline: measured 21.1 dB against 17.6 / 17.4 on this scene) and the object left there
+    moved_out = {
+        m: units[f"pick_place_1/{m}"]["result"]["out"]["psnr"]
+        for m in ("pre-edit", "preview", "neo", "seal3d", "oracle")
+    }
+    assert moved_out["neo"] > moved_out["pre-edit"] + 3, moved_out
+    assert moved_out["neo"] > max(moved_out["preview"], moved_out["seal3d"]) + 2, moved_out
+    assert moved_out["oracle"] == max(moved_out.values()), moved_out
     assert (cfg.out / "figures" / "removal_1.png").is_file()
     assert "figures/pick_place_1.png" in report
 

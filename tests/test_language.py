@@ -292,9 +292,10 @@ def test_query_cli(language_scene: Path, tmp_path: Path, capsys):
     assert set(box) >= {"center", "size", "yaw_deg", "score"}
     OrientedBox.from_dict(box)
     assert (tmp_path / "pics" / "query.png").is_file()
-    assert (
-        main(["query", str(language_scene), "quantum chromodynamics lecture", "--views", "0"]) == 1
-    )
+    missed = tmp_path / "missed.json"
+    lecture = ["query", str(language_scene), "quantum chromodynamics lecture", "--views", "0"]
+    assert main([*lecture, "--json", str(missed)]) == 1
+    assert not missed.exists()  # one prompt, nothing found: no JSON
     said = capsys.readouterr()
     assert "error: no object matched" in said.err and "no object matched" not in said.out
     # several prompts, one missed: the JSON keeps the found box, null for the miss

@@ -71,3 +71,19 @@ def test_own_edit_is_the_record_of_the_version_itself():
     assert own_edit({"edits": [STORED], "version_id": "cccccccccccc"}) is None  # an ancestor's
     assert own_edit({"edits": [], "version_id": "x"}) is None  # a trained scan
     assert own_edit({"edits": "broken"}) is None and own_edit(None) is None
+
+
+def test_a_stage_entered_many_times_sums_its_unrounded_seconds(monkeypatch):
+    """Each entry of a stage adds its exact time (a thousand 4 ms steps are 4 s, not 0);
+    the record shows the total rounded to 10 ms."""
+    from neoedit.utils import timings as timings_module
+
+    clock = iter(x * 0.004 for x in range(2000))  # every call 4 ms after the one before
+    monkeypatch.setattr(timings_module.time, "perf_counter", lambda: next(clock))
+    timings = timings_module.Timings()
+    for _ in range(1000):
+        with timings.stage("train"):
+            pass
+    assert timings["train_s"] == 4.0 and abs(timings.seconds("train") - 4.0) < 1e-9
+    timings["train_s"] = 1.5  # set by hand: only the value given is known
+    assert timings.seconds("train") == 1.5

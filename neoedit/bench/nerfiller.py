@@ -314,13 +314,13 @@ def _retrain(
                 k = update_at[step]
                 _update_dataset(trainer, views, inpainter, xis[k], timings)
             with training.stage("train"):
-                mse = trainer.step(step, training.get("train_s", 0.0))
+                mse = trainer.step(step, training.seconds("train"))
             ema = mse if step == 0 else 0.9 * ema + 0.1 * mse
             status = f"round {k + 1}/{rounds} xi {xis[k]:.2f} | PSNR {psnr(ema):5.2f} dB"
             progress.update(task, completed=step + 1, status=status)
     trainer.finish_grid()
     timings.merge(training)
-    t_train = training.get("train_s", 0.0)
+    t_train = training.seconds("train")
     meta = child.meta
     meta.train, meta.step, meta.train_seconds = dataclasses.asdict(train_cfg), steps, t_train
     meta.history = [

@@ -45,6 +45,7 @@ from neoedit.language.relevancy import split_prompts
 from neoedit.records import EditRecord
 from neoedit.scene import Scene
 from neoedit.utils.userfile import read_data_file
+from neoedit.utils.validate import shorten
 
 
 class MotionSpec(BaseModel):
@@ -82,6 +83,12 @@ class MotionSpec(BaseModel):
         return motion_about(np.asarray(box.center_m), t, self.yaw_deg)
 
 
+def _object_names(prompt: str | None) -> list[str]:
+    """The objects a prompt names ('Red mug; duck' -> ['red mug', 'duck']), compared without
+    case or extra spaces."""
+    return [" ".join(p.casefold().split()) for p in split_prompts(prompt or "")]
+
+
 class Action(BaseModel):
     model_config = ConfigDict(extra="forbid")
     type: Literal["move", "remove", "batch"]
@@ -106,6 +113,10 @@ class Action(BaseModel):
             raise ValueError("box is an empty list: give a box, or a list of boxes")
         if self.prompt is not None and not split_prompts(self.prompt):
             raise ValueError("the prompt is empty")
+        names = _object_names(self.prompt)
+        if len(set(names)) < len(names):
+            twice = next(n for n in names if names.count(n) > 1)
+            raise ValueError(f"the prompt names {shorten(twice)!r} twice")
         inline = self.translate_m is not None or self.yaw_deg != 0.0 or self.transform is not None
         if self.type == "remove":
             if inline or self.motions:
@@ -139,11 +150,11 @@ class Action(BaseModel):
             raise ValueError("a batch holds moves and removals, not batches")
         named: dict[str, int] = {}  # the edits of a batch must touch separate places
         for k, e in enumerate(self.edits, 1):
-            for name in {" ".join(p.casefold().split()) for p in split_prompts(e.prompt or "")}:
+            for name in _object_names(e.prompt):
                 if name in named:
                     raise ValueError(
-                        f"edits {named[name]} and {k} both name {name!r}: a batch edits each "
-                        "object once (give a move several motions, or make two steps)"
+                        f"edits {named[name]} and {k} both name {shorten(name)!r}: a batch "
+                        "edits each object once (edit it again in a later step)"
                     )
                 named[name] = k
         return self

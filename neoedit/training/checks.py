@@ -1,6 +1,7 @@
-"""What a training checks before its work starts: that ``--resume`` continues the same
-scan with the same model (options that would change the saved model are refused, not
-dropped), and that one training step fits in memory."""
+"""What a training checks before its work starts: the options of ``neo train``
+(:func:`check_train_options`), that ``--resume`` continues the same scan with the same model
+(options that would change the saved model are refused, not dropped), and that one training
+step fits in memory."""
 
 from __future__ import annotations
 

@@ -14,13 +14,22 @@ class Timings(dict[str, float]):
     @contextlib.contextmanager
     def stage(self, name: str) -> Iterator[None]:
         """Time the block into ``<name>_s`` (seconds, rounded to 10 ms); a stage entered
-        again adds to its time."""
+        again adds to its time (summed unrounded: a thousand 4 ms steps make 4 s)."""
         t = time.perf_counter()
         try:
             yield
         finally:
             key = f"{name}_s"
-            self[key] = round(self.get(key, 0.0) + time.perf_counter() - t, 2)
+            total = self.seconds(name) + time.perf_counter() - t
+            self.__dict__.setdefault("_exact", {})[key] = total
+            self[key] = round(total, 2)
+
+    def seconds(self, name: str) -> float:
+        """The unrounded time of stage ``name`` so far (0 before it ran)."""
+        key, exact = f"{name}_s", self.__dict__.get("_exact", {})
+        if key in exact and self.get(key) == round(exact[key], 2):
+            return exact[key]
+        return self.get(key, 0.0)  # set by hand (or merged): only its rounded value is known
 
     def merge(self, other: Mapping[str, float], prefix: str = "") -> Timings:
         """Add ``other``'s entries, each name prefixed; returns self."""
