@@ -266,27 +266,16 @@ def test_label_teacher_finds_objects(language_scene: Path, sim_root: Path):
 
 def test_query_cli(language_scene: Path, tmp_path: Path, capsys):
     out_json = tmp_path / "box.json"
-    rc = main(
-        [
-            "query",
-            str(language_scene),
-            "red mug",
-            "--json",
-            str(out_json),
-            "--out",
-            str(tmp_path / "pics"),
-            "--views",
-            "2",
-            "--image-scale",
-            "1",
-            "--query.min-cluster-points",
-            "10",
-            "--query.min-samples",
-            "4",
-            "--query.eps-m",
-            "0.03",
-        ]
-    )
+    tuned = [
+        "--query.min-cluster-points",
+        "10",
+        "--query.min-samples",
+        "4",
+        "--query.eps-m",
+        "0.03",
+    ]
+    pictures = ["--out", str(tmp_path / "pics"), "--views", "2", "--image-scale", "1"]
+    rc = main(["query", str(language_scene), "red mug", "--json", str(out_json), *pictures, *tuned])
     assert rc == 0
     box = json.loads(out_json.read_text())
     assert set(box) >= {"center", "size", "yaw_deg", "score"}
@@ -301,17 +290,9 @@ def test_query_cli(language_scene: Path, tmp_path: Path, capsys):
     # several prompts, one missed: the JSON keeps the found box, null for the miss
     both = tmp_path / "both.json"
     cmd = ["query", str(language_scene), "red mug; quantum chromodynamics lecture", "--views", "0"]
-    tuned = [
-        "--query.min-cluster-points",
-        "10",
-        "--query.min-samples",
-        "4",
-        "--query.eps-m",
-        "0.03",
-    ]
     assert main([*cmd, *tuned, "--json", str(both)]) == 1
-    found_box, missed = json.loads(both.read_text())
-    assert missed is None and found_box["center"] == box["center"]
+    found_box, no_box = json.loads(both.read_text())
+    assert no_box is None and found_box["center"] == box["center"]
     # a miss still pictures where its prompt scored (a relevancy map, no box)
     miss = ["query", str(language_scene), "quantum chromodynamics lecture", "--views", "2"]
     assert main([*miss, "--image-scale", "1", "--out", str(tmp_path / "miss")]) == 1

@@ -65,7 +65,8 @@ class QueryCommand:
         if scene.meta.language is None:
             raise NeoError(f"{self.scene} has no language field (train it on data with a teacher)")
         text = load_text_encoder(scene.meta.language.text)
-        results, misses, found = [], [], []
+        results, misses = [], []
+        found: list[dict | None] = []  # one entry per prompt, None for a miss
         for prompt in prompts:
             try:
                 results.append(query_scene(scene, prompt, text, self.query))
