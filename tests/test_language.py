@@ -265,15 +265,9 @@ def test_label_teacher_finds_objects(language_scene: Path, sim_root: Path):
 
 
 def test_query_cli(language_scene: Path, tmp_path: Path, capsys):
+    from test_move import SPARSE_ARGS as tuned  # the tiny scan's sparse surface points
+
     out_json = tmp_path / "box.json"
-    tuned = [
-        "--query.min-cluster-points",
-        "10",
-        "--query.min-samples",
-        "4",
-        "--query.eps-m",
-        "0.03",
-    ]
     pictures = ["--out", str(tmp_path / "pics"), "--views", "2", "--image-scale", "1"]
     rc = main(["query", str(language_scene), "red mug", "--json", str(out_json), *pictures, *tuned])
     assert rc == 0

@@ -306,21 +306,20 @@ def _retrain(
     timings["render_s"] = 0.0
     trainer = Trainer(inpainted, child, train_cfg, None, child.field.aabb.device)
     update_at = {round(k * steps / rounds): k for k in range(1, rounds)}
-    training, ema, k = Timings(), 1.0, 0  # the steps alone: the trainer's clock
+    ema, k = 1.0, 0
     with make_progress() as progress:
         task = progress.add_task("nerfiller", total=steps, status="")
         for step in range(steps):
             if step in update_at:
                 k = update_at[step]
                 _update_dataset(trainer, views, inpainter, xis[k], timings)
-            with training.stage("train"):
-                mse = trainer.step(step, training.seconds("train"))
+            with timings.stage("train"):  # the steps alone: the trainer's clock
+                mse = trainer.step(step, timings.seconds("train"))
             ema = mse if step == 0 else 0.9 * ema + 0.1 * mse
             status = f"round {k + 1}/{rounds} xi {xis[k]:.2f} | PSNR {psnr(ema):5.2f} dB"
             progress.update(task, completed=step + 1, status=status)
     trainer.finish_grid()
-    timings.merge(training)
-    t_train = training.seconds("train")
+    t_train = timings.seconds("train")
     meta = child.meta
     meta.train, meta.step, meta.train_seconds = dataclasses.asdict(train_cfg), steps, t_train
     meta.history = [
