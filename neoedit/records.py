@@ -97,7 +97,7 @@ class EditRecord:
             return f"batch ({parts})" if parts else "batch"
         text = self.type + (f" ({self.method})" if self.method else "")
         if self.type == "remove" and not self.details.get("inpaint") and not self.method:
-            text += " (cut)"
+            text += " (suppress)" if self.details.get("removal") == "suppress" else " (cut)"
         return text
 
     def boxes(self, *keys: str) -> list[OrientedBox]:

@@ -11,6 +11,7 @@ import shutil
 from pathlib import Path
 
 import pytest
+import torch
 
 from neoedit.bench import BenchConfig, run_bench
 from neoedit.bench.methods import (
@@ -262,6 +263,49 @@ def small_run(sim_root: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple
         threads=1,
     )
     return cfg, run_bench(cfg)
+
+
+def test_each_removal_row_is_its_methods_own_edit(sim_root: Path, trained: Path):
+    """Table I's rows build the edit of their method: NEO's removal in its configurations,
+    the DFF-style suppression and the Seal-3D-style baseline as their own classes (unknown
+    names and the rows that edit nothing refused); the DFF-style edit zeroes the density
+    in its box at render time, trains nothing and says so in the version's history."""
+    from neoedit.bench.dff import DffRemove
+    from neoedit.bench.methods import SceneInputs, language_config, removal_edit
+    from neoedit.bench.seal3d import SealRemove
+    from neoedit.edit.pipeline import apply_edit
+    from neoedit.edit.remove import Remove
+    from neoedit.geometry import OrientedBox
+    from neoedit.scene import load_scene
+
+    action = json.loads((sim_root / "removal_1" / "scene.json").read_text())["actions"][0]
+    box = OrientedBox.from_dict(action["source_box"])
+    inp = SceneInputs(sim_root / "removal_1", trained, {}, None, seed=0, edit_scale=0.3)
+    edits = {m: removal_edit(m, box, inp, "red mug", None) for m in ("neo", "resample",
+             "inpaint-telea", "suppress", "seal3d")}  # fmt: skip
+    assert isinstance(edits["neo"], Remove) and edits["neo"].cfg.inpaint
+    assert isinstance(edits["resample"], Remove) and not edits["resample"].cfg.inpaint
+    assert edits["inpaint-telea"].cfg.inpainter == "telea"  # type: ignore[attr-defined]
+    assert isinstance(edits["suppress"], DffRemove) and isinstance(edits["seal3d"], SealRemove)
+    languages = [getattr(e, "language", None) or e.cfg.language for e in edits.values()]  # type: ignore[attr-defined]
+    assert all(lang == language_config(0.3) for lang in languages)
+    for method in ("pre-edit", "oracle", "preview", "dff"):
+        with pytest.raises(NeoError, match="unknown removal method"):
+            removal_edit(method, box, inp, "red mug", None)
+    pre = load_scene(trained)
+    child = apply_edit(pre, DffRemove([box], "red mug"))
+    rec = child.meta.edits[-1]
+    assert (rec.method, rec.label, rec.details["removal"]) == (
+        "suppress",
+        "remove (suppress)",
+        "suppress",
+    )
+    assert child.meta.suppress_boxes and not child.meta.cut_boxes
+    points = torch.as_tensor(box.center_m, dtype=torch.float32)[None]
+    with torch.no_grad():
+        assert float(pre.field.density(points).max()) > 0  # the mug is there
+        assert float(child.renderable()[0].density(points).max()) == 0.0
+        assert torch.equal(child.field.density(points), pre.field.density(points))  # no training
 
 
 def test_the_nerfiller_rows_run_the_nerfiller_baseline(sim_root: Path):

@@ -11,6 +11,13 @@ Every method finds its object with a query of the object's name on the pre scene
 user would), and is evaluated on the post scan's held-out views with ``neo eval``'s
 metrics over Full, Out (the true source box's silhouette), In (the true target box's) and
 Rest.
+
+Each row that edits is a typed edit run by :func:`~neoedit.edit.pipeline.apply_edit`: NEO's
+:class:`~neoedit.edit.remove.Remove`, :class:`~neoedit.edit.relocate.Move` and
+:class:`~neoedit.edit.relocate.PreviewMove` in their configurations (resampling only and the
+ablations change one part of NEO's configuration), and the baselines' own classes beside
+this module (:mod:`~neoedit.bench.dff`, :mod:`~neoedit.bench.seal3d`,
+:mod:`~neoedit.bench.nerfiller`).
 """
 
 from __future__ import annotations
@@ -24,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from neoedit.bench.dff import DffRemove
 from neoedit.bench.seal3d import Seal3dConfig, SealMove, SealRemove
 from neoedit.cameras.rays import CameraTensors
 from neoedit.data import SceneData, load_scene_data
@@ -52,6 +60,13 @@ REMOVAL_METHODS = (
     "oracle",
 )
 MOVE_METHODS = ("pre-edit", "preview", "neo", "seal3d", "oracle")
+NO_EDIT = ("pre-edit", "oracle")
+"""Rows that edit nothing: the pre scene as it is, and a field trained on the post scan."""
+NEO_REMOVALS = ("neo", "resample")
+"""Table I's rows that are NEO's own removal (the baselines are their own edits: DFF-style
+suppression :class:`~neoedit.bench.dff.DffRemove`, Seal-3D-style
+:class:`~neoedit.bench.seal3d.SealRemove`, NeRFiller-style
+``neoedit.bench.nerfiller.NerfillerRemove``); the removal ablations are NEO's too."""
 ABLATIONS: dict[str, Callable[[MoveConfig], MoveConfig]] = {
     "no-virtual-views": lambda c: dataclasses.replace(c, virtual_views=False),
     "no-grid-inpaint": lambda c: dataclasses.replace(
@@ -133,12 +148,15 @@ def language_config(scale: float = 1.0) -> LanguageUpdateConfig:
 
 
 def remove_config(method: str, scale: float = 1.0) -> RemoveConfig:
-    """'resample', 'suppress' (no inpainting), 'neo' or a removal ablation; ``scale``
-    multiplies the training steps (the small profile's budget)."""
-    cfg = RemoveConfig(removal="suppress" if method == "suppress" else "resample")
+    """NEO's removal configuration for 'neo', 'resample' (NEO without its inpainting: the
+    box cut out of the rays at render time) or a removal ablation (which changes one part);
+    ``scale`` multiplies the training steps (the small profile's budget)."""
+    cfg = RemoveConfig()
     cfg.refine.steps = _steps(cfg.refine.steps, scale)
     if method in REMOVAL_ABLATIONS:
         return REMOVAL_ABLATIONS[method](cfg)
+    if method not in NEO_REMOVALS:
+        raise NeoError(f"{method!r} is not a configuration of NEO's removal")
     return cfg if method == "neo" else dataclasses.replace(cfg, inpaint=False)
 
 
@@ -232,12 +250,19 @@ def render_view(scene: Scene, data: SceneData) -> np.ndarray:
 def removal_edit(
     method: str, box: OrientedBox, inp: SceneInputs, name: str, scan: SceneData | None
 ) -> Edit:
-    """The typed edit of one removal method of Table I (run by :func:`apply_edit`)."""
-    if method in ("resample", "suppress", "neo", *REMOVAL_ABLATIONS):
-        language = language_config(inp.edit_scale)
+    """The typed edit of one removal method of Table I (run by :func:`apply_edit`): NEO's
+    removal in one of its configurations (:data:`NEO_REMOVALS`, the removal ablations) or a
+    baseline's edit (DFF-, Seal-3D-, NeRFiller-style), each with the bench's language update."""
+    language = language_config(inp.edit_scale)
+    if method in (*NEO_REMOVALS, *REMOVAL_ABLATIONS):
         return Remove([box], remove_config(method, inp.edit_scale), name, language=language)
+    if method == "suppress":
+        return DffRemove([box], name, language=language)
     if method == "seal3d":
         return SealRemove([box], seal3d_config(inp.edit_scale), name)
+    if method not in ("nerfiller", "nerfiller-no-depth"):
+        known = ", ".join(m for m in (*REMOVAL_METHODS, *REMOVAL_ABLATIONS) if m not in NO_EDIT)
+        raise NeoError(f"unknown removal method {method!r} (choose from {known})")
     from neoedit.bench.nerfiller import NerfillerConfig, NerfillerRemove
 
     # NeRFiller retrains the whole field: the pre scan's own budget, edit_scale or not
@@ -245,7 +270,7 @@ def removal_edit(
     cfg = NerfillerConfig(depth=method == "nerfiller", seed=inp.seed)
     if scan is None:
         raise NeoError("the NeRFiller-style baseline needs the pre scan's images")
-    return NerfillerRemove(scan, [box], cfg, name, language=language_config(inp.edit_scale))
+    return NerfillerRemove(scan, [box], cfg, name, language=language)
 
 
 def run_removal(method: str, inp: SceneInputs) -> tuple[dict[str, Any], np.ndarray]:
