@@ -31,8 +31,8 @@ class EditRecord:
     prompt: str | None = None
     """The words that named the object (None: boxes given)."""
     method: str | None = None
-    """How: 'neo', 'preview', 'seal3d', 'nerfiller', ... (None for NEO's removals, whose
-    ``details`` say 'removal' and 'inpaint')."""
+    """How: 'neo', 'preview', 'seal3d', 'nerfiller', 'suppress' (the DFF-style baseline), ...
+    (None for NEO's removals, whose ``details`` say 'removal' and 'inpaint')."""
     parent: str | None = None
     """Version id of the scene the edit started from."""
     version: str | None = None
@@ -90,7 +90,7 @@ class EditRecord:
 
     @property
     def label(self) -> str:
-        """How ``neo log`` and the viewer name the edit: 'remove', 'remove (cut)',
+        """How ``neo log`` and the viewer name the edit: 'remove', 'remove (cut)', 'remove (suppress)',
         'move (neo)', 'move (preview)', 'remove (nerfiller)', 'batch (remove, move (neo))'..."""
         if self.type == "batch":
             parts = ", ".join(p.label for p in self.parts())

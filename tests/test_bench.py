@@ -10,6 +10,7 @@ import re
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
@@ -283,15 +284,22 @@ def test_each_removal_row_is_its_methods_own_edit(sim_root: Path, trained: Path)
     inp = SceneInputs(sim_root / "removal_1", trained, {}, None, seed=0, edit_scale=0.3)
     edits = {m: removal_edit(m, box, inp, "red mug", None) for m in ("neo", "resample",
              "inpaint-telea", "suppress", "seal3d")}  # fmt: skip
-    assert isinstance(edits["neo"], Remove) and edits["neo"].cfg.inpaint
-    assert isinstance(edits["resample"], Remove) and not edits["resample"].cfg.inpaint
-    assert edits["inpaint-telea"].cfg.inpainter == "telea"  # type: ignore[attr-defined]
-    assert isinstance(edits["suppress"], DffRemove) and isinstance(edits["seal3d"], SealRemove)
+    neo, resample, telea = edits["neo"], edits["resample"], edits["inpaint-telea"]
+    assert isinstance(neo, Remove) and neo.cfg.inpaint and neo.cfg.removal == "resample"
+    assert isinstance(resample, Remove) and not resample.cfg.inpaint
+    assert resample.cfg.removal == "resample"  # NEO's cut, not the DFF-style suppression
+    assert isinstance(telea, Remove) and telea.cfg.inpaint and telea.cfg.inpainter == "telea"
+    dff = edits["suppress"]
+    assert isinstance(dff, DffRemove) and dff.boxes == [box] and dff.prompt == "red mug"
+    assert isinstance(edits["seal3d"], SealRemove)
     languages = [getattr(e, "language", None) or e.cfg.language for e in edits.values()]  # type: ignore[attr-defined]
     assert all(lang == language_config(0.3) for lang in languages)
     for method in ("pre-edit", "oracle", "preview", "dff"):
-        with pytest.raises(NeoError, match="unknown removal method"):
+        with pytest.raises(NeoError, match="is not a removal method that edits"):
             removal_edit(method, box, inp, "red mug", None)
+    for method in ("suppress", "seal3d", "oracle"):  # not configurations of NEO's removal
+        with pytest.raises(NeoError, match="not a configuration of NEO's removal"):
+            remove_config(method)
     pre = load_scene(trained)
     child = apply_edit(pre, DffRemove([box], "red mug"))
     rec = child.meta.edits[-1]
@@ -300,10 +308,13 @@ def test_each_removal_row_is_its_methods_own_edit(sim_root: Path, trained: Path)
         "remove (suppress)",
         "suppress",
     )
-    assert child.meta.suppress_boxes and not child.meta.cut_boxes
-    points = torch.as_tensor(box.center_m, dtype=torch.float32)[None]
+    assert child.meta.suppress_boxes == rec.details["edit_boxes"] and not child.meta.cut_boxes
+    steps = np.linspace(-0.45, 0.45, 9)
+    local = np.stack(np.meshgrid(steps, steps, steps, indexing="ij"), -1).reshape(-1, 3)
+    inside = (local * np.asarray(box.size_m)) @ box.rotation.T + np.asarray(box.center_m)
+    points = torch.as_tensor(inside, dtype=torch.float32)
     with torch.no_grad():
-        assert float(pre.field.density(points).max()) > 0  # the mug is there
+        assert float(pre.field.density(points).max()) > 10  # the mug is there (opaque)
         assert float(child.renderable()[0].density(points).max()) == 0.0
         assert torch.equal(child.field.density(points), pre.field.density(points))  # no training
 

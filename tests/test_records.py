@@ -62,8 +62,11 @@ def test_hand_edited_or_partial_records_never_raise():
     assert meta.edits[1].type == "?"  # the scene still loads
     cut = EditRecord.parse({"type": "remove", "removal": "resample", "inpaint": None})
     assert cut.label == "remove (cut)"
-    zeroed = EditRecord.parse({"type": "remove", "removal": "suppress", "inpaint": None})
-    assert zeroed.label == "remove (suppress)"  # neo remove --removal suppress
+    # neo remove --removal suppress --no-inpaint: recorded as the DFF-style method (a record
+    # written before that, with no method, is labelled by its details)
+    for method in ("suppress", None):
+        raw = {"type": "remove", "method": method, "removal": "suppress", "inpaint": None}
+        assert EditRecord.parse(raw).label == "remove (suppress)"
     assert EditRecord.parse({"type": "remove", "inpaint": "fsr"}).label == "remove"
     assert EditRecord.parse({"type": "remove", "method": "seal3d"}).label == "remove (seal3d)"
 

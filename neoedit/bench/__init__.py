@@ -2,7 +2,7 @@
 
 Public API: :class:`BenchConfig` and :func:`run_bench`; the methods are listed in
 :mod:`neoedit.bench.methods`, the budgets in :mod:`neoedit.bench.profiles`, the baselines
-are :mod:`neoedit.bench.seal3d` and :mod:`neoedit.bench.nerfiller`. Exports load lazily
+are :mod:`neoedit.bench.seal3d`, :mod:`neoedit.bench.nerfiller` and :mod:`neoedit.bench.dff`. Exports load lazily
 (``neo move --method seal3d`` imports the baseline without the benchmark runner).
 """
 

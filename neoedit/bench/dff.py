@@ -26,7 +26,9 @@ __all__ = ["DffRemove"]
 @dataclass
 class DffRemove:
     """Suppress the density inside ``boxes`` (each grown by ``margin_m`` as NEO's removal
-    grows its own): no training, no inpainting. Recorded as method 'suppress'."""
+    grows its own): no training, no inpainting. It is ``neo remove --removal suppress
+    --no-inpaint``, recorded as method 'suppress' (with the removal's whole configuration,
+    as every removal records it)."""
 
     boxes: list[OrientedBox]
     prompt: str | None = None
@@ -36,6 +38,4 @@ class DffRemove:
 
     def prepare(self, parent: Scene) -> Prepared:
         cfg = RemoveConfig(removal="suppress", inpaint=False, margin_m=self.margin_m)
-        prepared = Remove(self.boxes, cfg, self.prompt, language=self.language).prepare(parent)
-        prepared.record.method = "suppress"
-        return prepared
+        return Remove(self.boxes, cfg, self.prompt, language=self.language).prepare(parent)

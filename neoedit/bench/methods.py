@@ -156,7 +156,8 @@ def remove_config(method: str, scale: float = 1.0) -> RemoveConfig:
     if method in REMOVAL_ABLATIONS:
         return REMOVAL_ABLATIONS[method](cfg)
     if method not in NEO_REMOVALS:
-        raise NeoError(f"{method!r} is not a configuration of NEO's removal")
+        known = ", ".join((*NEO_REMOVALS, *REMOVAL_ABLATIONS))
+        raise NeoError(f"{method!r} is not a configuration of NEO's removal (choose from {known})")
     return cfg if method == "neo" else dataclasses.replace(cfg, inpaint=False)
 
 
@@ -262,7 +263,7 @@ def removal_edit(
         return SealRemove([box], seal3d_config(inp.edit_scale), name)
     if method not in ("nerfiller", "nerfiller-no-depth"):
         known = ", ".join(m for m in (*REMOVAL_METHODS, *REMOVAL_ABLATIONS) if m not in NO_EDIT)
-        raise NeoError(f"unknown removal method {method!r} (choose from {known})")
+        raise NeoError(f"{method!r} is not a removal method that edits (choose from {known})")
     from neoedit.bench.nerfiller import NerfillerConfig, NerfillerRemove
 
     # NeRFiller retrains the whole field: the pre scan's own budget, edit_scale or not

@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from neoedit.bench.folder import RunFolder
-from neoedit.bench.methods import RUNNERS, Refusal, SceneInputs
+from neoedit.bench.methods import NO_EDIT, RUNNERS, Refusal, SceneInputs
 from neoedit.bench.profiles import Budget, Profile, budget_of
 from neoedit.bench.units import Unit, code_version, suite_specs
 from neoedit.errors import NeoError
@@ -73,7 +73,7 @@ def kept_version(ctx: Context, unit: Unit) -> Path | None:
     if not ctx.keep_versions or unit.kind not in RUNNERS:
         return None
     method = unit.params["method"]
-    if method in ("pre-edit", "oracle"):
+    if method in NO_EDIT:
         return None
     return ctx.folder.version(unit.scene, method)
 

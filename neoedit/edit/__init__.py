@@ -12,8 +12,8 @@ The edits: :class:`Remove` (NEO's removal and inpainting, or the instant preview
 :class:`Move` (NEO's distillation), :class:`PreviewMove` (the move composed at render
 time) and :class:`Batch` (several edits in separate places as one version); the
 baselines are edits of their own beside the benchmark: ``neoedit.bench.seal3d.SealMove`` /
-``SealRemove`` (Seal-3D-style) and ``neoedit.bench.nerfiller.NerfillerRemove``
-(NeRFiller-style). Exports load lazily
+``SealRemove`` (Seal-3D-style), ``neoedit.bench.nerfiller.NerfillerRemove``
+(NeRFiller-style) and ``neoedit.bench.dff.DffRemove`` (DFF-style). Exports load lazily
 (the modules import torch).
 """
 

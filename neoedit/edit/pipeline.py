@@ -2,7 +2,8 @@
 
 An edit is a typed object (:class:`~neoedit.edit.remove.Remove`,
 :class:`~neoedit.edit.relocate.Move`, and the baselines beside the benchmark:
-``neoedit.bench.seal3d.SealMove`` / ``SealRemove``, ``neoedit.bench.nerfiller.NerfillerRemove``);
+``neoedit.bench.seal3d.SealMove`` / ``SealRemove``, ``neoedit.bench.nerfiller.NerfillerRemove``,
+``neoedit.bench.dff.DffRemove``);
 :func:`apply_edit` runs it on a scene and returns the new version::
 
     prepared = edit.prepare(parent)        # checks, edit boxes, the history record: no work

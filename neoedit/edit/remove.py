@@ -3,7 +3,8 @@
 
 * Removal alone (``inpaint=False``) is instant: the new version records the box and every
   render cuts it out of the rays (``resample``: samples are drawn on the rest of each ray) or
-  zeroes the density inside it (``suppress``: the DFF-style baseline).
+  zeroes the density inside it (``suppress``: the DFF-style baseline, recorded as method
+  'suppress'; ``neo bench`` runs it as ``neoedit.bench.dff.DffRemove``).
 * With inpainting, the new version's weights are trained (:mod:`neoedit.edit.refine`) so
   the removal is persistent and the hidden surface is completed; no box is cut at render
   time any more.
@@ -54,7 +55,8 @@ Strip = tuple[int, list[np.ndarray]]
 class RemoveConfig:
     removal: str = "resample"
     """'resample' (cut the box out of every ray, sample the rest) or 'suppress' (zero density
-    in the box, standard sampling: the DFF-style baseline)."""
+    in the box, standard sampling: with --no-inpaint, the DFF-style baseline; with
+    inpainting it only changes the first round's preview)."""
     inpaint: bool = True
     """Complete what the object hid (virtual views + inpainting + training). Off: the instant
     removal preview, no training."""
@@ -134,7 +136,9 @@ class Remove:
             "inpaint": inpaint if cfg.inpaint else None,
             "config": dataclasses.asdict(cfg),
         }
-        record = EditRecord("remove", self.prompt, details=details)
+        # a suppression that trains nothing is the DFF-style baseline, not NEO's removal
+        method = "suppress" if cfg.removal == "suppress" and not cfg.inpaint else None
+        record = EditRecord("remove", self.prompt, method, details=details)
 
         def run(child: Scene, timings: Timings) -> None:
             if not cfg.inpaint:
