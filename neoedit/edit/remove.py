@@ -55,7 +55,7 @@ Strip = tuple[int, list[np.ndarray]]
 class RemoveConfig:
     removal: str = "resample"
     """'resample' (cut the box out of every ray, sample the rest) or 'suppress' (zero density
-    in the box, standard sampling: with --no-inpaint, the DFF-style baseline; with
+    in the box, standard sampling: the DFF-style baseline when nothing is inpainted; with
     inpainting it only changes the first round's preview)."""
     inpaint: bool = True
     """Complete what the object hid (virtual views + inpainting + training). Off: the instant
