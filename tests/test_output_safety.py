@@ -450,3 +450,32 @@ def test_a_suggested_option_of_another_command_is_named_with_it():
     assert lines[2] == "  every option: neo sim benchmark --help"
     # without a verb every verb's options are fair suggestions
     assert condense(text, "neo").splitlines()[1] == "  did you mean: --scenes, --only"
+
+
+def test_a_help_line_that_starts_with_an_option_is_not_suggested():
+    """tyro wraps help text freely: a help line may start with an option's name ('--no-inpaint,
+    the DFF-style baseline'); only the rows that name options are suggestions (metavars and
+    choices included)."""
+    from neoedit.cli._parse import condense
+
+    rows = [
+        "Unrecognized options: --no-inpaint",
+        "───",
+        "Perhaps you meant:",
+        "    --edit.remove.inpaint, --edit.remove.no-inpaint",
+        "        Complete what the object hid; with",
+        "        --no-inpaint, the instant preview. (default: True)",
+        "        in neo move --help",
+        "    --profile {small,standard}",
+        "        --profile small is for tests. (default: small)",
+        "        in neo move --help",
+        "    --json {None}|PATH",
+        "        in neo move --help",
+        "    --scenes [STR [STR ...]]",
+        "        in neo move --help",
+        "───",
+        "For full helptext, run neo move --help",
+    ]
+    text = "\n".join(["╭─ Unrecognized options ─╮", *(f"│ {r} │" for r in rows), "╰──╯"])
+    lines = condense(text, "neo move").splitlines()
+    assert lines[1] == "  did you mean: --edit.remove.inpaint, --profile, --json, --scenes"

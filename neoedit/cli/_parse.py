@@ -202,15 +202,30 @@ def _absent(first: list[str], suggestions: list[str], verb: str) -> str | None:
     return exact[0]
 
 
+_CHOICES = re.compile(r"\{[^}]*\}")
+"""A metavar's choices ('{small,standard}', '{None}|PATH'), lower case allowed."""
+
+
+def _is_option_row(row: str) -> bool:
+    """A row that names options ('--out PATH', '--a, --no-a', '--scenes [STR [STR ...]]'),
+    not a line of their help text that happens to start with one ('--no-inpaint, the
+    DFF-style baseline'): after the first option, only options and metavars (upper case,
+    brackets, choices in braces)."""
+    words = row.split()
+    if not words or not words[0].startswith("-"):
+        return False
+    rest = [_CHOICES.sub("", w) for w in words[1:] if not w.startswith("-")]
+    return not any(c.islower() for w in rest for c in w)
+
+
 def _suggested(rows: list[str], verb: str) -> list[str]:
     """The options tyro suggests, each followed by the row naming the command it belongs
     to ('in neo bench --help'); an option of another command than ``verb`` is named with
     it ('--scenes (an option of neo bench)'), the options of ``verb`` come first."""
     options: list[tuple[str, str | None]] = []
     for row in rows:
-        word = row.split()[0].rstrip(",")
-        if word.startswith("-"):
-            options.append((word, None))
+        if _is_option_row(row):
+            options.append((row.split()[0].rstrip(","), None))
         owner = _OWNER.match(row)
         if owner and options and options[-1][1] is None:
             options[-1] = (options[-1][0], owner.group(1))
