@@ -90,8 +90,10 @@ class EditRecord:
 
     @property
     def label(self) -> str:
-        """How ``neo log`` and the viewer name the edit: 'remove', 'remove (cut)', 'remove (suppress)',
-        'move (neo)', 'move (preview)', 'remove (nerfiller)', 'batch (remove, move (neo))'..."""
+        """How ``neo log`` and the viewer name the edit: 'remove', 'remove (cut)',
+        'remove (suppress)', 'move (neo)', 'move (preview)', 'remove (nerfiller)',
+        'batch (remove, move (neo))'... (a suppression recorded before it had a method is
+        named by its details)."""
         if self.type == "batch":
             parts = ", ".join(p.label for p in self.parts())
             return f"batch ({parts})" if parts else "batch"

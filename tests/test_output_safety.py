@@ -425,6 +425,11 @@ def test_parse_errors_are_condensed_to_a_few_lines():
         assert lines[2] == "  every option: neo move --help" and len(lines) == 3
 
 
+def _tyro_box(rows: list[str]) -> str:
+    """``rows`` drawn in tyro's error box, as a UTF-8 terminal shows it."""
+    return "\n".join(["╭─ Unrecognized options ─╮", *(f"│ {r} │" for r in rows), "╰──╯"])
+
+
 def test_a_suggested_option_of_another_command_is_named_with_it():
     """tyro suggests similar options of every verb; one that belongs to another verb must
     not read as an option of this one (``neo sim benchmark --scenes`` said "did you mean:
@@ -444,7 +449,7 @@ def test_a_suggested_option_of_another_command_is_named_with_it():
         "───",
         "For full helptext, run neo --help",
     ]
-    text = "\n".join(["╭─ Unrecognized options ─╮", *(f"│ {r} │" for r in rows), "╰──╯"])
+    text = _tyro_box(rows)
     lines = condense(text, "neo sim benchmark").splitlines()
     assert lines[1] == "  did you mean: --only, --scenes (an option of neo bench)"
     assert lines[2] == "  every option: neo sim benchmark --help"
@@ -476,6 +481,6 @@ def test_a_help_line_that_starts_with_an_option_is_not_suggested():
         "───",
         "For full helptext, run neo move --help",
     ]
-    text = "\n".join(["╭─ Unrecognized options ─╮", *(f"│ {r} │" for r in rows), "╰──╯"])
+    text = _tyro_box(rows)
     lines = condense(text, "neo move").splitlines()
     assert lines[1] == "  did you mean: --edit.remove.inpaint, --profile, --json, --scenes"

@@ -2,8 +2,9 @@
 
 Public API: :class:`BenchConfig` and :func:`run_bench`; the methods are listed in
 :mod:`neoedit.bench.methods`, the budgets in :mod:`neoedit.bench.profiles`, the baselines
-are :mod:`neoedit.bench.seal3d`, :mod:`neoedit.bench.nerfiller` and :mod:`neoedit.bench.dff`. Exports load lazily
-(``neo move --method seal3d`` imports the baseline without the benchmark runner).
+are :mod:`neoedit.bench.seal3d`, :mod:`neoedit.bench.nerfiller` and :mod:`neoedit.bench.dff`.
+Exports load lazily (``neo move --method seal3d`` imports the baseline without the
+benchmark runner).
 """
 
 from __future__ import annotations
