@@ -15,3 +15,9 @@ class DataError(NeoError):
 
 class SpecError(NeoError):
     """A scene specification (simulation) is malformed; the message names the field."""
+
+
+class NeoWarning(UserWarning):
+    """Something the user should know that does not stop the work (frames skipped, a cache
+    that cannot be written, a pre-shrunk folder that is not used); ``neo`` prints it as one
+    ``warning:`` line."""

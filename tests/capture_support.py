@@ -18,6 +18,8 @@ from neoedit.cameras.cameras import look_at
 
 W, H = 320, 240
 F = 260.0
+RING_N = 12
+"""Photos in the ring of :func:`colmap_project`."""
 RADIUS, HEIGHT = 0.5, 0.3
 TARGET = np.array([0.0, 0.0, 0.05])
 TRUE_DISTANCE = float(np.hypot(RADIUS, HEIGHT - TARGET[2]))
@@ -172,3 +174,43 @@ def marker_texture(
 
 def pinhole_k() -> np.ndarray:
     return np.array([[F, 0, W / 2], [0, F, H / 2], [0, 0, 1.0]])
+
+
+def colmap_project(root: Path, model="PINHOLE", params=None, dist=None, images=True) -> Path:  # noqa: ANN001
+    """A COLMAP project (sparse/0 text model + images) of the synthetic ring."""
+    c2w = ring_c2w(RING_N)
+    pts = scene_points()
+    k = pinhole_k()
+    dist = np.zeros(4) if dist is None else dist
+    write_colmap_text(
+        root / "sparse" / "0",
+        to_model(c2w),
+        to_model(pts),
+        tracks_for(c2w, pts, k, dist),
+        model,
+        params,
+    )
+    if images:
+        (root / "images").mkdir(parents=True)
+        tex = floor_texture()
+        for i in range(RING_N):
+            cv2.imwrite(str(root / "images" / f"{i:04d}.png"), render_floor(c2w[i], k, tex))
+    return root
+
+
+def fold_model(src: Path, at: int) -> None:
+    """Rewrite the model of ``src`` folded at photo ``at``: the later photos turned 180 deg
+    about the vertical through the target, sharing no points with the earlier ones."""
+    c2w = ring_c2w(RING_N)
+    pts = scene_points()
+    k = pinhole_k()
+    tracks = tracks_for(c2w, pts, k, np.zeros(4))
+    folded = c2w.copy()
+    turn = np.diag([-1.0, -1.0, 1.0, 1.0])
+    folded[at:] = turn @ c2w[at:]
+    tracks = [[(i, uv) for i, uv in t if i < at] or t for t in tracks]
+    tracks = [
+        t if {i < at for i, _ in t} != {True, False} else [e for e in t if e[0] < at]
+        for t in tracks
+    ]
+    write_colmap_text(src / "sparse" / "0", to_model(folded), to_model(pts), tracks)

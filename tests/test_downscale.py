@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -10,7 +12,7 @@ import pytest
 from neoedit.cli import main
 from neoedit.data import load_scene_data
 from neoedit.data.downscale import DataConfig
-from neoedit.errors import DataError
+from neoedit.errors import DataError, NeoWarning
 
 
 def _write_dataset(root: Path, w: int = 64, h: int = 48) -> None:
@@ -73,3 +75,86 @@ def test_info_reports_the_downscaled_size_box_and_command(tmp_path: Path, capsys
     assert "4 frames of 32x24" in out
     assert "scene box:" in out and "cube around" in out
     assert "--downscale 2" in out
+
+
+def _pre_shrink(root: Path, factor: int, folder: str = "images", mark: int = 7) -> None:
+    """nerfstudio's ``images_N/`` copies of the photos (``ns-process-data`` writes them),
+    each with a marked corner pixel so a test can tell which file was read."""
+    import cv2
+
+    for src in sorted((root / folder).glob("*.png")):
+        small = cv2.resize(cv2.imread(str(src)), None, fx=1 / factor, fy=1 / factor,
+                           interpolation=cv2.INTER_AREA)  # fmt: skip
+        small[0, 0] = mark
+        (root / f"{folder}_{factor}").mkdir(exist_ok=True)
+        cv2.imwrite(str(root / f"{folder}_{factor}" / src.name), small)
+
+
+def test_nerfstudio_images_n_folders_are_read_when_they_match(tmp_path: Path):
+    """--downscale N reads nerfstudio's pre-shrunk images_N/ copies (intrinsics scaled as for
+    a shrink in memory); a copy folder that lacks a photo, or holds another size, is not used
+    (a warning says why) and the photos are shrunk on load instead."""
+    _write_dataset(tmp_path)
+    shrunk = load_scene_data(tmp_path, DataConfig(downscale=2))
+    _pre_shrink(tmp_path, 2)
+    read = load_scene_data(tmp_path, DataConfig(downscale=2))
+    assert read.pre_shrunk and read.downscaled == 2 and not shrunk.pre_shrunk
+    assert read.images.shape == shrunk.images.shape and (read.images[:, 0, 0] == 7).all()
+    assert read.file_paths == shrunk.file_paths  # the splits still name the listed photos
+    for key in ("fx", "fy", "cx", "cy"):
+        assert np.allclose(getattr(read.cameras, key), getattr(shrunk.cameras, key))
+    assert np.abs(read.images[:, 1:, 1:].astype(int) - shrunk.images[:, 1:, 1:]).max() <= 1
+    assert not load_scene_data(tmp_path, DataConfig(downscale=4)).pre_shrunk  # no images_4/
+    (tmp_path / "images_2" / "3.png").unlink()
+    with pytest.warns(UserWarning, match="images_2 is not used .*no images_2/3.png"):
+        data = load_scene_data(tmp_path, DataConfig(downscale=2))
+    assert not data.pre_shrunk and data.downscaled == 2 and (data.images[:, 0, 0] != 7).any()
+
+
+def test_images_n_of_another_size_is_not_used(tmp_path: Path):
+    _write_dataset(tmp_path)
+    _pre_shrink(tmp_path, 4)
+    (tmp_path / "images_4").rename(tmp_path / "images_2")  # a quarter, named a half
+    with pytest.warns(UserWarning, match="is 16x12, not 1/2 of 64x48"):
+        data = load_scene_data(tmp_path, DataConfig(downscale=2))
+    assert data.width == 32 and not data.pre_shrunk
+
+
+def test_info_lists_missing_images_and_prints_warnings_as_lines(tmp_path: Path, capsys):
+    """``neo info`` on a dataset with a missing photo reports it (no refusal) and says how
+    to train; ``neo train`` refuses it; with --skip-missing the warning is one line."""
+    _write_dataset(tmp_path)
+    (tmp_path / "images" / "2.png").unlink()
+    assert main(["info", str(tmp_path), "--no-check-poses"]) == 0
+    out = " ".join(capsys.readouterr().out.split())
+    assert "3 frames of 64x48" in out and "missing: " in out and "2 (images/2.png)" in out
+    assert "lenses: pinhole (no distortion)" in out
+    assert "--skip-missing --out <scene folder>" in out
+    (tmp_path / "images" / "2.png").write_bytes((tmp_path / "images" / "1.png").read_bytes())
+    _pre_shrink(tmp_path, 2)
+    assert main(["info", str(tmp_path), "--downscale", "2", "--no-check-poses"]) == 0
+    assert "downscaled 2x (read from images_2/)" in capsys.readouterr().out
+
+
+@dataclasses.dataclass
+class _Warns:
+    """A command whose work warns: once in neoedit's own words, once as a library would."""
+
+    def run(self) -> None:
+        warnings.warn("3 frames are skipped", NeoWarning, stacklevel=2)
+        warnings.warn("a library's own note", UserWarning, stacklevel=2)
+
+
+def test_neoedits_warnings_print_as_one_line(capsys, monkeypatch):
+    from neoedit.cli import _run
+
+    others: list[str] = []
+    monkeypatch.setattr(
+        warnings, "showwarning", lambda message, *a, **k: others.append(str(message))
+    )
+    warnings.simplefilter("always")
+    assert _run(_Warns(), None) == 0
+    err = capsys.readouterr().err
+    assert "warning: 3 frames are skipped\n" in err and "NeoWarning" not in err
+    assert others == ["a library's own note"]  # shown as Python (or pytest) shows warnings
+    assert "a library's own note" not in err

@@ -16,33 +16,10 @@ from neoedit.data.colmap import read_colmap
 from neoedit.data.importer import ImportConfig, import_capture
 from neoedit.data.llff import read_llff
 from neoedit.data.orient import OrientConfig
-from neoedit.data.pieces import find_pieces
 from neoedit.errors import DataError
 from tests import capture_support as cs
 
-N = 12
-
-
-def _capture(root: Path, model="PINHOLE", params=None, dist=None, images=True) -> Path:  # noqa: ANN001
-    """A COLMAP project (sparse/0 text model + images) of the synthetic ring."""
-    c2w = cs.ring_c2w(N)
-    pts = cs.scene_points()
-    k = cs.pinhole_k()
-    dist = np.zeros(4) if dist is None else dist
-    cs.write_colmap_text(
-        root / "sparse" / "0",
-        cs.to_model(c2w),
-        cs.to_model(pts),
-        cs.tracks_for(c2w, pts, k, dist),
-        model,
-        params,
-    )
-    if images:
-        (root / "images").mkdir(parents=True)
-        tex = cs.floor_texture()
-        for i in range(N):
-            cv2.imwrite(str(root / "images" / f"{i:04d}.png"), cs.render_floor(c2w[i], k, tex))
-    return root
+N = cs.RING_N
 
 
 def _centres(data_dir: Path) -> np.ndarray:
@@ -50,7 +27,7 @@ def _centres(data_dir: Path) -> np.ndarray:
 
 
 def test_colmap_import_recovers_the_metric_z_up_frame(tmp_path):
-    src = _capture(tmp_path / "cap")
+    src = cs.colmap_project(tmp_path / "cap")
     orient = OrientConfig(camera_distance_m=cs.TRUE_DISTANCE)
     import_capture(read_colmap(src), tmp_path / "ds", ImportConfig(orient=orient))
     data = load_scene_data(tmp_path / "ds")
@@ -78,7 +55,7 @@ def test_colmap_import_recovers_the_metric_z_up_frame(tmp_path):
 
 
 def test_binary_and_text_models_import_the_same(tmp_path):
-    src = _capture(tmp_path / "cap")
+    src = cs.colmap_project(tmp_path / "cap")
     binary = tmp_path / "bin"
     binary.mkdir()
     pycolmap.Reconstruction(str(src / "sparse" / "0")).write_binary(str(binary))
@@ -95,7 +72,7 @@ def test_undistortion_puts_a_point_where_the_dataset_camera_projects_it(tmp_path
     """A blob drawn at the *distorted* projection of a 3-D point must, after import
     (undistortion, downscale, orientation), sit where the dataset's pinhole camera sees it."""
     k1, k2, p1, p2 = -0.12, 0.03, 0.002, -0.001
-    src = _capture(
+    src = cs.colmap_project(
         tmp_path / "cap",
         "OPENCV",
         [cs.F, cs.F * 1.01, 161.0, 119.0, k1, k2, p1, p2],
@@ -135,7 +112,7 @@ def test_undistortion_puts_a_point_where_the_dataset_camera_projects_it(tmp_path
 
 
 def test_llff_reads_the_same_poses_as_colmap(tmp_path):
-    src = _capture(tmp_path / "cap")
+    src = cs.colmap_project(tmp_path / "cap")
     colmap = read_colmap(src)
     rows = []
     for c2w in colmap.camera_to_world:
@@ -155,56 +132,6 @@ def test_llff_reads_the_same_poses_as_colmap(tmp_path):
     assert read_llff(src).image_dir == src / "images_4"
 
 
-def _fold(src: Path, at: int) -> None:
-    """Rewrite the model of ``src`` folded at photo ``at``: the later photos turned 180 deg
-    about the vertical through the target, sharing no points with the earlier ones."""
-    c2w = cs.ring_c2w(N)
-    pts = cs.scene_points()
-    k = cs.pinhole_k()
-    tracks = cs.tracks_for(c2w, pts, k, np.zeros(4))
-    folded = c2w.copy()
-    turn = np.diag([-1.0, -1.0, 1.0, 1.0])
-    folded[at:] = turn @ c2w[at:]
-    tracks = [[(i, uv) for i, uv in t if i < at] or t for t in tracks]
-    tracks = [
-        t if {i < at for i, _ in t} != {True, False} else [e for e in t if e[0] < at]
-        for t in tracks
-    ]
-    cs.write_colmap_text(src / "sparse" / "0", cs.to_model(folded), cs.to_model(pts), tracks)
-
-
-def test_a_folded_model_is_found_and_refused_unless_a_piece_is_chosen(tmp_path, capsys):
-    src = _capture(tmp_path / "cap")
-    pieces, _ = find_pieces(read_colmap(src))
-    assert len(pieces) == 1  # the intact ring is one piece
-    _fold(src, 6)
-    pieces, checks = find_pieces(read_colmap(src))
-    assert [list(p) for p in pieces] == [list(range(6)), list(range(6, N))]
-    assert any(c.first == 5 and c.epipolar_px > 10 for c in checks)
-    assert main(["import", "colmap", str(src), "--out", str(tmp_path / "ds")]) == 2
-    err = " ".join(capsys.readouterr().err.split())
-    assert "inconsistent pieces" in err and "--piece largest" in err
-    assert not (tmp_path / "ds").exists()
-    assert main(["import", "colmap", str(src), "--out", str(tmp_path / "ds"), "--piece", "2"]) == 0
-    data = load_scene_data(tmp_path / "ds")
-    assert len(data) == N - 6
-    meta = json.loads((tmp_path / "ds" / "transforms.json").read_text())
-    assert meta["neoedit_import"]["imported"].startswith("piece 2 of 2")
-
-
-def test_missing_shared_points_alone_is_no_break(tmp_path):
-    """Consecutive photos without common sparse points but with right poses (e.g. a model
-    whose tracks were filtered) are checked with feature matches and kept together."""
-    src = _capture(tmp_path / "cap")
-    c2w = cs.ring_c2w(N)
-    pts = cs.scene_points()
-    tracks = cs.tracks_for(c2w, pts, cs.pinhole_k(), np.zeros(4))
-    tracks = [[e for e in t if e[0] < 6] if any(e[0] < 6 for e in t) else t for t in tracks]
-    cs.write_colmap_text(src / "sparse" / "0", cs.to_model(c2w), cs.to_model(pts), tracks)
-    pieces, checks = find_pieces(read_colmap(src))
-    assert len(pieces) == 1 and any(c.first == 5 and c.epipolar_px < 1.0 for c in checks)
-
-
 @pytest.mark.parametrize(
     "damage, message",
     [
@@ -216,7 +143,7 @@ def test_missing_shared_points_alone_is_no_break(tmp_path):
     ],
 )
 def test_malformed_colmap_inputs_fail_clearly(tmp_path, capsys, damage, message):
-    src = _capture(tmp_path / "cap")
+    src = cs.colmap_project(tmp_path / "cap")
     model = src / "sparse" / "0"
     if damage == "no_model":
         (model / "points3D.txt").unlink()
@@ -251,7 +178,7 @@ def test_malformed_colmap_inputs_fail_clearly(tmp_path, capsys, damage, message)
     ],
 )
 def test_malformed_llff_inputs_fail_clearly(tmp_path, capsys, table, message):
-    src = _capture(tmp_path / "cap")
+    src = cs.colmap_project(tmp_path / "cap")
     good = []
     for c2w in read_colmap(src).camera_to_world:
         mat = np.c_[-c2w[:3, 1], c2w[:3, 0], c2w[:3, 2], c2w[:3, 3], [cs.H, cs.W, cs.F]]
@@ -273,7 +200,7 @@ def test_malformed_llff_inputs_fail_clearly(tmp_path, capsys, table, message):
 
 
 def test_import_never_replaces_a_folder_it_did_not_write(tmp_path, capsys):
-    src = _capture(tmp_path / "cap")
+    src = cs.colmap_project(tmp_path / "cap")
     mine = tmp_path / "mine"
     mine.mkdir()
     (mine / "notes.txt").write_text("keep me")
@@ -313,7 +240,7 @@ def test_process_recovers_the_cameras_from_the_photos_alone(tmp_path, capsys):
 
 
 def test_process_says_clearly_when_too_few_photos_register(tmp_path, capsys):
-    src = _capture(tmp_path / "cap")  # 12 photos 30 degrees apart: too little overlap
+    src = cs.colmap_project(tmp_path / "cap")  # 12 photos 30 degrees apart: too little overlap
     assert main(["process", str(src / "images"), "--out", str(tmp_path / "ds")]) == 2
     assert "registered only" in " ".join(capsys.readouterr().err.split())
     assert not (tmp_path / "ds").exists()
@@ -380,7 +307,7 @@ def test_register_moves_a_later_scan_into_the_earlier_frame(tmp_path, capsys):
     dist, angle = _pose_errors(got, post_true)
     assert dist < 0.005 and angle < 0.5, (dist, angle)
     # a scan without markers cannot be registered: one clear error, nothing written
-    plain = _capture(tmp_path / "plain_cap")
+    plain = cs.colmap_project(tmp_path / "plain_cap")
     assert main(["import", "colmap", str(plain), "--out", str(tmp_path / "plain")]) == 0
     assert (
         main(
@@ -428,7 +355,7 @@ def test_sparse_depth_puts_the_sfm_points_on_the_training_rays(tmp_path, capsys)
 
     k1, k2, p1, p2 = -0.12, 0.03, 0.002, -0.001
     params = [cs.F, cs.F * 1.01, 161.0, 119.0, k1, k2, p1, p2]
-    src = _capture(tmp_path / "cap", "OPENCV", params, dist=np.array([k1, k2, p1, p2]))
+    src = cs.colmap_project(tmp_path / "cap", "OPENCV", params, dist=np.array([k1, k2, p1, p2]))
     orient = OrientConfig(camera_distance_m=cs.TRUE_DISTANCE)
     cfg = ImportConfig(orient=orient, max_width=200)
     report = import_capture(read_colmap(src), tmp_path / "ds", cfg)

@@ -6,6 +6,7 @@ import contextlib
 import io
 import os
 import sys
+import warnings
 from collections.abc import Iterator, Sequence
 from typing import Any, Protocol
 
@@ -13,7 +14,7 @@ from rich.console import Console
 from rich.markup import escape
 
 from neoedit.cli._parse import parse
-from neoedit.errors import NeoError
+from neoedit.errors import NeoError, NeoWarning
 from neoedit.utils.options import check_options
 from neoedit.utils.progress import QUIET_ENV
 from neoedit.utils.threads import configure_threads, parse_threads
@@ -216,6 +217,23 @@ class _Command(Protocol):
     def run(self) -> None: ...
 
 
+@contextlib.contextmanager
+def _warnings_as_lines(err: Console) -> Iterator[None]:
+    """neoedit's own warnings (:class:`NeoWarning`) print as one ``warning:`` line, not as
+    Python's file:line report; other libraries' warnings are shown as they always are."""
+    with warnings.catch_warnings():  # restores the previous showwarning on the way out
+        shown = warnings.showwarning
+
+        def show(message: Any, category: type[Warning], *args: Any, **kwargs: Any) -> None:
+            if issubclass(category, NeoWarning):
+                err.print(f"[yellow]warning:[/] {escape(str(message))}", highlight=False)
+            else:
+                shown(message, category, *args, **kwargs)
+
+        warnings.showwarning = show
+        yield
+
+
 def _run(command: _Command, threads: int | None) -> int:
     """Run a parsed command; errors -> one line on stderr and the exit status."""
     err = Console(stderr=True)
@@ -223,7 +241,8 @@ def _run(command: _Command, threads: int | None) -> int:
         configure_threads(threads)
         check_options(command)
         check_device(getattr(command, "device", "auto"))
-        command.run()
+        with _warnings_as_lines(err):
+            command.run()
     except (NeoError, OSError) as e:  # OSError: a file that cannot be read or written
         err.print(f"[bold red]error:[/] {user_message(e)}", highlight=False)
         return getattr(e, "exit_code", 2)

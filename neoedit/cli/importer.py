@@ -3,6 +3,7 @@ nerfstudio dataset that ``neo info`` and ``neo train`` read."""
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Union
@@ -163,6 +164,12 @@ def print_report(report: ImportReport) -> None:
         c.print(f"[yellow]the model is in {len(report.pieces)} inconsistent pieces:[/]")
         for first, last, n in report.pieces:
             c.print(f"  {first}..{last}: {n} photos")
+    for first, second, evidence in report.doubts:
+        c.print(
+            f"[yellow]warning:[/] {escape(first)} -> {escape(second)}: {escape(evidence)}; too "
+            "weak to call the model broken (imported); if renders are blurry there, re-run "
+            "structure-from-motion (neo process)"
+        )
     c.print(f"up: {o.up_source}; scale x{o.scale:.4g} ({o.scale_source})")
     if o.scale_source.startswith("ASSUMED"):
         c.print(
@@ -237,7 +244,8 @@ class ProcessCommand:
                 f"registered ({result.models} model{'s' if result.models > 1 else ''}) in "
                 f"{seconds:.0f} s"
             )
-            capture = read_colmap(result.model, images)
+            # named by the photos in messages (the model lives in a temporary folder)
+            capture = dataclasses.replace(read_colmap(result.model, images), source=src)
 
             def keep_model(folder: Path) -> None:
                 shutil.copytree(result.model, folder / "colmap" / "sparse" / "0")

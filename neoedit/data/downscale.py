@@ -3,22 +3,27 @@
 A 1080x1920 phone capture trains on 2 CPU cores far faster, and hardly worse, at a quarter of
 its size. :func:`downscale` shrinks every per-pixel array of a :class:`SceneData` (area
 averaging for colour and opacity, nearest neighbour for depth, labels and masks) and scales
-the intrinsics to match. (nerfstudio's pre-shrunk ``images_N/`` folders are not read yet:
-the full-size photos are shrunk on load.)
+the intrinsics to match. Where a nerfstudio dataset has its photos pre-shrunk by that
+factor (``images_N/``, and ``masks_N/`` / ``depths_N/`` for the frames' masks and depths, as
+nerfstudio's ``ns-process-data`` writes them), :func:`pre_shrunk` has them read instead.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from dataclasses import dataclass
-from typing import overload
+from pathlib import Path
+from typing import Any, overload
 
 import cv2
 import numpy as np
 
 from neoedit.cameras import Cameras
+from neoedit.data.images import image_size
 from neoedit.data.scene_data import SceneData
-from neoedit.errors import DataError
+from neoedit.data.undistort import Lens
+from neoedit.errors import DataError, NeoWarning
 from neoedit.utils.options import at_least
 
 
@@ -27,7 +32,8 @@ class DataConfig:
     """How a dataset is read for training, evaluation or ``neo info``."""
 
     downscale: int = 1
-    """Shrink the images by this integer factor (nerfstudio: --downscale-factor)."""
+    """Shrink the images by this integer factor (nerfstudio: --downscale-factor); nerfstudio's
+    pre-shrunk images_N/ copies are read where they hold every frame."""
     max_width: int | None = at_least(8)
     """Or shrink by the smallest integer factor that makes the images at most this wide."""
     skip_missing: bool = False
@@ -92,4 +98,60 @@ def downscale(data: SceneData, factor: int) -> SceneData:
         alpha=_resize(data.alpha, (w, h), nearest=False),
         loss_mask=_resize(data.loss_mask, (w, h), nearest=True),
         instance_ids=None if ids is None else _resize(ids.astype(np.int32), (w, h), True),
+        downscaled=data.downscaled * factor,
     )
+
+
+PRE_SHRUNK_FOLDERS = {"file_path": "images_", "mask_path": "masks_", "depth_file_path": "depths_"}
+"""A frame's file key -> nerfstudio's folder prefix for its copies shrunk N times."""
+
+
+def pre_shrunk(
+    root: Path, frames: list[tuple[int, dict[str, Any]]], lenses: list[Lens], factor: int
+) -> tuple[list[tuple[int, dict[str, Any]]], list[Lens]] | None:
+    """The frames pointed at nerfstudio's pre-shrunk copies (``images_N/NAME`` for
+    ``file_path``, ``masks_N/`` and ``depths_N/`` for masks and depths, N = ``factor``) and
+    their lenses scaled to the copies' size; None (read the full-size photos and shrink them
+    in memory) without an ``images_N/`` folder, or with a warning when it does not hold every
+    file at 1/N of the size."""
+    folder = root / f"images_{factor}"
+    if factor == 1 or not folder.is_dir():
+        return None
+    found = _copies(root, frames, lenses, factor)
+    if isinstance(found, str):
+        warnings.warn(
+            f"{folder} is not used ({found}); the full-size photos are shrunk instead",
+            NeoWarning,
+            stacklevel=3,
+        )
+        return None
+    return found
+
+
+def _copies(
+    root: Path, frames: list[tuple[int, dict[str, Any]]], lenses: list[Lens], factor: int
+) -> tuple[list[tuple[int, dict[str, Any]]], list[Lens]] | str:
+    """:func:`pre_shrunk`'s frames and lenses, or why the copies cannot be used."""
+    moved_frames, scaled = [], []
+    for (i, frame), lens in zip(frames, lenses, strict=True):
+        moved = dict(frame)
+        for key, prefix in PRE_SHRUNK_FOLDERS.items():
+            if key in frame:
+                copy = Path(f"{prefix}{factor}") / Path(frame[key]).name
+                if not (root / copy).is_file():
+                    return f"it has no {copy.as_posix()} (frame {i})"
+                moved[key] = copy.as_posix()
+        if "instance_path" in frame:
+            return "the frames' instance images have no shrunk copies"
+        w, h = image_size(root / moved["file_path"])
+        if abs(w - lens.width / factor) >= 1 or abs(h - lens.height / factor) >= 1:
+            return f"{moved['file_path']} is {w}x{h}, not 1/{factor} of {lens.width}x{lens.height}"
+        sx, sy = w / lens.width, h / lens.height
+        scaled.append(
+            dataclasses.replace(
+                lens, fx=lens.fx * sx, fy=lens.fy * sy, cx=lens.cx * sx, cy=lens.cy * sy,
+                width=w, height=h,
+            )
+        )  # fmt: skip
+        moved_frames.append((i, moved))
+    return moved_frames, scaled

@@ -66,6 +66,7 @@ class ImportConfig:
                 f"--piece must be one of {', '.join(PIECE_CHOICES)} or a piece number, got "
                 f"{self.piece!r}"
             )
+        self.pieces.check()
         for name in ("scale", "camera_distance_m", "aruco_size_m"):
             value = getattr(self.orient, name)
             if value is not None and not (0 < value < float("inf")):
@@ -84,11 +85,17 @@ class ImportReport:
     chosen: str
     orientation: Orientation
     checks: list[PairCheck]
+    """Every consecutive pair examined with feature matches (:mod:`neoedit.data.pieces`)."""
+    doubts: list[tuple[str, str, str]] = field(default_factory=list)
+    """(first name, second name, evidence) of the pairs whose matches disagree with the
+    model's poses, too weakly to call a break: imported, with a warning."""
     sparse_depth: dict | None = None
     """What the sparse depth holds (points, median pixels per photo, unit), None if none."""
 
 
-def _choose(capture: Capture, pieces: list[np.ndarray], choice: str) -> tuple[np.ndarray, str]:
+def _choose(
+    capture: Capture, pieces: list[np.ndarray], choice: str, breaks: list[PairCheck]
+) -> tuple[np.ndarray, str]:
     spans = [f"{capture.names[p[0]]}..{capture.names[p[-1]]} ({len(p)} photos)" for p in pieces]
     if choice == "all" or len(pieces) == 1:
         return np.arange(len(capture)), "all photos" + (" (one piece)" if len(pieces) == 1 else "")
@@ -99,11 +106,16 @@ def _choose(capture: Capture, pieces: list[np.ndarray], choice: str) -> tuple[np
         k = int(choice) - 1
         return pieces[k], f"piece {k + 1} of {len(pieces)}: {spans[k]}"
     listing = "\n".join(f"  piece {k + 1}: {s}" for k, s in enumerate(spans))
+    evidence = "\n".join(
+        f"  {capture.names[c.first]} -> {capture.names[c.first + 1]}: {c.evidence()}"
+        for c in breaks
+    )
     if choice == "check":
         raise DataError(
             f"{capture.source}: this model is broken into {len(pieces)} inconsistent pieces "
             "(consecutive photos match each other but not under the model's poses, so a field "
-            f"trained on all of them would be blurry):\n{listing}\nre-run structure-from-motion "
+            f"trained on all of them would be blurry):\n{listing}\nthe evidence, at each break:"
+            f"\n{evidence}\nre-run structure-from-motion "
             "(neo process), or import one piece with --piece largest or --piece N "
             "(--piece all imports everything anyway)"
         )
@@ -176,7 +188,8 @@ def import_capture(
         )
     cfg.check()
     pieces, checks = find_pieces(capture, cfg.pieces)
-    index, chosen = _choose(capture, pieces, cfg.piece)
+    breaks = [c for c in checks if c.is_break(cfg.pieces)]
+    index, chosen = _choose(capture, pieces, cfg.piece, breaks)
     part = capture.subset(index)
     if len(part) < 3:
         raise DataError(f"only {len(part)} photos to import; need at least 3")
@@ -237,7 +250,14 @@ def import_capture(
     spans = [(capture.names[p[0]], capture.names[p[-1]], len(p)) for p in pieces]
     h, w = frames[0]["h"], frames[0]["w"]
     summary = meta["neoedit_import"].get("sparse_depth")
-    return ImportReport(Path(out), len(frames), (w, h), spans, chosen, frame, checks, summary)
+    doubts = [
+        (capture.names[c.first], capture.names[c.first + 1], c.evidence())
+        for c in checks
+        if c.verdict(cfg.pieces) == "doubtful"
+    ]
+    return ImportReport(
+        Path(out), len(frames), (w, h), spans, chosen, frame, checks, doubts, summary
+    )
 
 
 def _depth_writer(

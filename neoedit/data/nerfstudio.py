@@ -42,7 +42,9 @@ import numpy as np
 
 from neoedit.cameras import Cameras
 from neoedit.cameras.cameras import validate_pose
+from neoedit.data.downscale import pre_shrunk
 from neoedit.data.images import image_size, read_frame
+from neoedit.data.ngp import box_ok, ngp_box
 from neoedit.data.orient import levelled_at_import
 from neoedit.data.scene_data import SceneData
 from neoedit.data.undistort import (
@@ -50,22 +52,19 @@ from neoedit.data.undistort import (
     Lens,
     Undistorter,
     camera_model,
+    describe_lenses,
     make_lens,
 )
 from neoedit.data.validate import (
-    MAX_COORD_M,
     check_camera_model,
     check_intrinsics,
     check_rotation,
+    finite_number,
 )
-from neoedit.errors import DataError
+from neoedit.errors import DataError, NeoWarning
 
 INTRINSIC_KEYS = ("fl_x", "fl_y", "cx", "cy", "w", "h")
 HOLDOUT_EVERY = 8
-NGP_SCALE = 0.33
-NGP_OFFSET = (0.5, 0.5, 0.5)
-NGP_MAX_AABB_SCALE = 128.0
-"""instant-ngp clamps ``aabb_scale`` to 2**(cascades - 1) = 128."""
 MISSING_LISTED = 10
 """Missing frames named in the error (the rest are counted)."""
 
@@ -84,17 +83,10 @@ def read_json(path: Path) -> Any:
         raise DataError(f"{path} is not valid JSON: {e}") from None
 
 
-def _number(d: dict[str, Any], key: str, where: str) -> float:
-    value = d.get(key)
-    if not isinstance(value, (int, float)) or isinstance(value, bool) or not np.isfinite(value):
-        raise DataError(f"{where}: '{key}' must be a finite number, got {value!r}")
-    return float(value)
-
-
 def _value(meta: dict[str, Any], frame: dict[str, Any], key: str, where: str) -> float | None:
     """The frame's number ``key``, else the global one, else None."""
     source = frame if key in frame else meta
-    return _number(source, key, where) if key in source else None
+    return finite_number(source, key, where) if key in source else None
 
 
 def _intrinsics(
@@ -223,7 +215,7 @@ def _drop_missing(
         )
     if len(missing) == len(frames):
         raise DataError(f"{what}; no frame is left")
-    warnings.warn(f"{what}; those frames are skipped", stacklevel=3)
+    warnings.warn(f"{what}; those frames are skipped", NeoWarning, stacklevel=3)
     gone = {i for i, _ in missing}
     return [(i, f) for i, f in frames if i not in gone], frozenset(_norm(p) for _, p in missing)
 
@@ -282,62 +274,25 @@ def _extras(
     if arr.shape != (3,) or not all(_unit_number(v) for v in bg):
         raise DataError(f"{tf_path}: 'background_color' must be 3 numbers in [0, 1], got {bg!r}")
     unit = (
-        _number(meta, "depth_unit_scale_factor", str(tf_path))
+        finite_number(meta, "depth_unit_scale_factor", str(tf_path))
         if "depth_unit_scale_factor" in meta
         else 1e-3
     )
     if unit <= 0:
         raise DataError(f"{tf_path}: 'depth_unit_scale_factor' must be positive, got {unit:g}")
-    box = _ngp_box(meta, tf_path)
+    box = ngp_box(meta, tf_path)
     aabb = meta.get("scene_aabb")
     if aabb is not None:
         try:
             box = np.asarray(aabb, dtype=np.float64).reshape(2, 3)
         except (TypeError, ValueError):
             box = np.full((2, 3), np.nan)
-        if not _box_ok(box):
+        if not box_ok(box):
             raise DataError(
                 f"{tf_path}: 'scene_aabb' must be [[xmin,ymin,zmin],[xmax,ymax,zmax]] with max > "
                 f"min, got {aabb!r}"
             )
     return (float(bg[0]), float(bg[1]), float(bg[2])), unit, box
-
-
-def _box_ok(box: np.ndarray) -> bool:
-    return bool(np.all(np.abs(box) <= MAX_COORD_M) and np.all(box[1] > box[0]))
-
-
-def _ngp_box(meta: dict[str, Any], tf_path: Path) -> np.ndarray | None:
-    """instant-ngp's scene box in the poses' coordinates (None without ``aabb_scale``).
-    instant-ngp maps a pose's point p to ``p * scale + offset`` and bounds the scene by the
-    cube of side ``aabb_scale`` centred on (0.5, 0.5, 0.5) there."""
-    where = f"{tf_path}: instant-ngp"
-    scale = _number(meta, "scale", where) if "scale" in meta else NGP_SCALE
-    if scale <= 0:
-        raise DataError(f"{where} 'scale' must be positive, got {scale:g}")
-    offset = np.asarray(NGP_OFFSET, dtype=np.float64)
-    if "offset" in meta:
-        raw = meta["offset"]
-        items = raw if isinstance(raw, list) else [raw] * 3
-        if len(items) != 3 or not all(_finite(v) for v in items):
-            raise DataError(f"{where} 'offset' must be 3 finite numbers, got {raw!r}")
-        offset = np.asarray(items, dtype=np.float64)
-    if "aabb_scale" not in meta:
-        return None
-    aabb_scale = _number(meta, "aabb_scale", where)
-    if aabb_scale <= 0:
-        raise DataError(f"{where} 'aabb_scale' must be a positive number, got {aabb_scale:g}")
-    half = 0.5 * min(aabb_scale, NGP_MAX_AABB_SCALE)
-    box = np.stack([(0.5 - half - offset) / scale, (0.5 + half - offset) / scale])
-    if not _box_ok(box):
-        raise DataError(
-            f"{where} 'aabb_scale', 'scale' and 'offset' give a box beyond {MAX_COORD_M:g}"
-        )
-    return box
-
-
-def _finite(v: Any) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
 
 def _unit_number(v: Any) -> bool:
@@ -359,14 +314,22 @@ def load_nerfstudio(
     path: Path,
     background_rgb: tuple[float, float, float] | None = None,
     skip_missing: bool = False,
+    factor_for: Callable[[int], int] | None = None,
 ) -> SceneData:
     """Load a nerfstudio dataset from a ``transforms.json`` file or the folder holding it.
     ``skip_missing``: drop the frames whose image file is missing (with a warning) instead of
-    refusing the dataset."""
+    refusing the dataset. ``factor_for(width)``: the factor the caller shrinks the images
+    by; nerfstudio's ``images_N/`` copies at that factor are read instead where they exist
+    (``SceneData.pre_shrunk``)."""
     tf_path, meta = _read_meta(path)
     root = tf_path.parent
     frames, dropped = _drop_missing(tf_path, _frames(tf_path, meta), skip_missing)
     poses, lenses = _parse_frames(tf_path, meta, frames, with_images=True)
+    file_paths = [f["file_path"] for _, f in frames]
+    factor = 1 if factor_for is None else factor_for(lenses[0].width)
+    shrunk = pre_shrunk(root, frames, lenses, factor)
+    if shrunk is not None:
+        frames, lenses = shrunk
     meta_bg, unit, aabb = _extras(meta, tf_path)
     bg = background_rgb or meta_bg
     undistorter = Undistorter(root)
@@ -392,7 +355,6 @@ def load_nerfstudio(
         full = np.ones(images[0].shape[:2], bool)
         valid = np.stack([full if f.valid is None else f.valid for f in loaded])
         loss_mask = valid if loss_mask is None else loss_mask & valid
-    file_paths = [f["file_path"] for _, f in frames]
     names, objects = _instance_names(root)
     return SceneData(
         root=root,
@@ -409,6 +371,9 @@ def load_nerfstudio(
         background_rgb=bg,
         scene_aabb_m=aabb,
         levelled=levelled_at_import(meta),
+        downscaled=1 if shrunk is None else factor,
+        pre_shrunk=shrunk is not None,
+        lens_note=describe_lenses(lenses),
     )
 
 

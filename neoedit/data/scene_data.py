@@ -34,6 +34,9 @@ class SceneData:
     background_rgb: tuple[float, float, float] | None = None  # in [0, 1]
     scene_aabb_m: np.ndarray | None = None  # (2, 3) min / max corner of the scene
     levelled: bool = False  # +z is a measured up: `neo import` levelled it (data.orient)
+    downscaled: int = 1  # the images were shrunk by this factor at load (data.downscale)
+    pre_shrunk: bool = False  # ...by reading nerfstudio's images_N/ copies, not the photos
+    lens_note: str = "pinhole (no distortion)"  # the lenses as the dataset describes them
 
     def __len__(self) -> int:
         return len(self.file_paths)

@@ -37,7 +37,7 @@ import imageio.v3 as iio
 import numpy as np
 
 from neoedit.data.validate import PINHOLE_MODELS, check_intrinsics
-from neoedit.errors import DataError
+from neoedit.errors import DataError, NeoWarning
 from neoedit.utils.cache import cache_dir
 from neoedit.utils.io import write_png
 
@@ -241,6 +241,7 @@ class Undistorter:
         warnings.warn(
             f"the undistortion cache {self._folder}: {why}; nothing is cached (set {CACHE_ENV} "
             f"to a folder {want})",
+            NeoWarning,
             stacklevel=4,
         )
         self._folder = None
@@ -299,3 +300,13 @@ def _inside(path: Path, folder: Path) -> bool:
         return Path(path).resolve().is_relative_to(Path(folder).resolve())
     except OSError:
         return True  # cannot tell: do not write
+
+
+def describe_lenses(lenses: list[Lens]) -> str:
+    """The frames' lenses in a line: 'pinhole', or the distortion model and coefficients."""
+    kinds = sorted({lens.describe() for lens in lenses if lens.distorted})
+    if not kinds:
+        return "pinhole (no distortion)"
+    distorted = sum(lens.distorted for lens in lenses)
+    what = kinds[0] if len(kinds) == 1 else f"{len(kinds)} sets of coefficients, e.g. {kinds[0]}"
+    return f"{what} on {distorted} of {len(lenses)} frames; undistorted on load to pinholes"

@@ -113,3 +113,16 @@ def check_scan_record(record: Any, where: str) -> None:
     )
     if not ok:
         raise DataError(f"{where}: 'scan.split' must map split names to camera indices < {n}")
+
+
+def finite_number(d: Mapping[str, Any], key: str, where: str) -> float:
+    """``d[key]`` as a float: a :class:`DataError` naming it unless it is a finite number."""
+    value = d.get(key)
+    if not isinstance(value, (int, float)) or isinstance(value, bool) or not np.isfinite(value):
+        raise DataError(f"{where}: '{key}' must be a finite number, got {value!r}")
+    return float(value)
+
+
+def is_finite_number(v: Any) -> bool:
+    """A JSON value that is a finite number (not a bool)."""
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and bool(np.isfinite(v))
