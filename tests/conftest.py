@@ -55,7 +55,9 @@ TINY_RENDER = RenderConfig(n_march_samples=192, n_coarse_samples=48, n_samples=2
 TINY_GRID = OccupancyGridConfig(resolution=48, warmup_steps=32)
 
 
-def tiny_train(data: Path, out: Path, steps: int, resume: bool = False, language=None):
+def tiny_train(
+    data: Path, out: Path, steps: int, resume: bool = False, language=None, data_cfg=None
+):
     """Train the tiny test configuration on CPU (no evaluation, one checkpoint at the end)."""
     cfg = TrainConfig(
         max_steps=steps,
@@ -75,6 +77,7 @@ def tiny_train(data: Path, out: Path, steps: int, resume: bool = False, language
         device="cpu",
         resume=resume,
         language=language,
+        data_cfg=data_cfg,
     )
 
 
