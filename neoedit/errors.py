@@ -21,3 +21,7 @@ class NeoWarning(UserWarning):
     """Something the user should know that does not stop the work (frames skipped, a cache
     that cannot be written, a pre-shrunk folder that is not used); ``neo`` prints it as one
     ``warning:`` line."""
+
+
+class MissingFramesWarning(NeoWarning):
+    """Frames whose image file is missing were skipped (``--skip-missing``)."""

@@ -99,6 +99,7 @@ def _train_psnr(root: Path, cfg: DataConfig, tmp: Path, steps: int) -> tuple[flo
 
     data = load_scene_data(root, cfg)
     assert data.width == W and data.height == H
+    assert data.pre_shrunk == (cfg.downscale > 1)  # images_2/ read, not shrunk on load
     scene = tiny_train(root, tmp / "scene", steps=steps, data_cfg=cfg)
     views = list(data.split["train"][:4])
     valid = data.loss_mask if data.loss_mask is not None else np.ones(data.images.shape[:3], bool)

@@ -13,6 +13,7 @@ from neoedit.cli import main
 from neoedit.data import load_scene_data
 from neoedit.data.downscale import DataConfig
 from neoedit.errors import DataError, NeoWarning
+from neoedit.utils.io import write_png
 
 
 def _write_dataset(root: Path, w: int = 64, h: int = 48) -> None:
@@ -106,16 +107,46 @@ def test_nerfstudio_images_n_folders_are_read_when_they_match(tmp_path: Path):
     assert np.abs(read.images[:, 1:, 1:].astype(int) - shrunk.images[:, 1:, 1:]).max() <= 1
     assert not load_scene_data(tmp_path, DataConfig(downscale=4)).pre_shrunk  # no images_4/
     (tmp_path / "images_2" / "3.png").unlink()
-    with pytest.warns(UserWarning, match="images_2 is not used .*no images_2/3.png"):
+    with pytest.warns(NeoWarning, match="images_2 is not used .*no images_2/3.png"):
         data = load_scene_data(tmp_path, DataConfig(downscale=2))
     assert not data.pre_shrunk and data.downscaled == 2 and (data.images[:, 0, 0] != 7).any()
+
+
+def test_masks_and_depths_come_from_their_own_n_folders(tmp_path: Path):
+    """Frames with masks and depths read masks_N/ and depths_N/ beside images_N/; without
+    one of them the copies are not used; two frames whose copies share a name neither."""
+    import json
+
+    _write_dataset(tmp_path)
+    meta = json.loads((tmp_path / "transforms.json").read_text())
+    for i, frame in enumerate(meta["frames"]):
+        write_png(tmp_path / "masks" / f"{i}.png", np.full((48, 64), 255, np.uint8))
+        write_png(tmp_path / "depths" / f"{i}.png", np.full((48, 64), 1000, np.uint16))
+        write_png(tmp_path / "masks_2" / f"{i}.png", np.full((24, 32), 255, np.uint8))
+        write_png(tmp_path / "depths_2" / f"{i}.png", np.full((24, 32), 2000 + i, np.uint16))
+        frame.update(mask_path=f"masks/{i}.png", depth_file_path=f"depths/{i}.png")
+    (tmp_path / "transforms.json").write_text(json.dumps(meta))
+    _pre_shrink(tmp_path, 2)
+    data = load_scene_data(tmp_path, DataConfig(downscale=2))
+    assert data.pre_shrunk and data.loss_mask is not None and data.loss_mask.all()
+    assert np.allclose(data.depth_m[:, 5, 5], [2.0, 2.001, 2.002, 2.003])  # depths_2/, in m
+    (tmp_path / "depths_2" / "1.png").unlink()
+    with pytest.warns(NeoWarning, match="no depths_2/1.png"):
+        data = load_scene_data(tmp_path, DataConfig(downscale=2))
+    assert not data.pre_shrunk and np.allclose(data.depth_m[:, 5, 5], 1.0)
+    write_png(tmp_path / "depths_2" / "1.png", np.full((24, 32), 2000, np.uint16))
+    meta["frames"][1]["file_path"] = "images/other/0.png"  # another camera's 0.png
+    write_png(tmp_path / "images" / "other" / "0.png", np.zeros((48, 64, 3), np.uint8))
+    (tmp_path / "transforms.json").write_text(json.dumps(meta))
+    with pytest.warns(NeoWarning, match="frames 0 and 1 would both read images_2/0.png"):
+        assert not load_scene_data(tmp_path, DataConfig(downscale=2)).pre_shrunk
 
 
 def test_images_n_of_another_size_is_not_used(tmp_path: Path):
     _write_dataset(tmp_path)
     _pre_shrink(tmp_path, 4)
     (tmp_path / "images_4").rename(tmp_path / "images_2")  # a quarter, named a half
-    with pytest.warns(UserWarning, match="is 16x12, not 1/2 of 64x48"):
+    with pytest.warns(NeoWarning, match="is 16x12, not 1/2 of 64x48"):
         data = load_scene_data(tmp_path, DataConfig(downscale=2))
     assert data.width == 32 and not data.pre_shrunk
 

@@ -237,6 +237,8 @@ def test_process_recovers_the_cameras_from_the_photos_alone(tmp_path, capsys):
     np.testing.assert_allclose(data.cameras.fx, cs.F, rtol=0.01)
     assert (out / "colmap" / "sparse" / "0" / "images.bin").is_file()
     assert not [p for p in tmp_path.iterdir() if ".sfm-" in p.name]  # work folder removed
+    meta = json.loads((out / "transforms.json").read_text())
+    assert meta["neoedit_import"]["source"] == str(tmp_path / "photos")  # not the work folder
 
 
 def test_process_says_clearly_when_too_few_photos_register(tmp_path, capsys):

@@ -92,8 +92,8 @@ def test_weak_evidence_imports_with_a_warning_that_gives_it(tmp_path, capsys, mo
 
     monkeypatch.setattr(pc, "_check_pair", weaker)
     assert main(["import", "colmap", str(src), "--out", str(tmp_path / "ds")]) == 0
-    out = " ".join(capsys.readouterr().out.split())
-    assert "warning: 0005.png -> 0006.png: of " in out and "too weak" in out
+    err = " ".join(capsys.readouterr().err.split())
+    assert "warning: 0005.png -> 0006.png: of " in err and "too weak" in err
     assert len(load_scene_data(tmp_path / "ds")) == N
 
 
@@ -133,6 +133,40 @@ def test_info_says_whether_the_poses_agree_with_the_photos(tmp_path, capsys):
     assert [len(p) for p in pieces] == [6, N - 6]
     assert main(["info", str(tmp_path / "bad"), "--no-check-poses"]) == 0
     assert "poses:" not in capsys.readouterr().out
+
+
+def test_a_dataset_is_checked_in_its_own_pixels(tmp_path):
+    """The check on a loaded dataset (undistorted images, pinholes with nerfstudio's pixel
+    centres) measures right poses to under a pixel, at full size, shrunk in memory and
+    from nerfstudio's images_2/ copies; cameras at one place leave nothing to test."""
+    import dataclasses
+
+    import cv2
+
+    from neoedit.data.downscale import DataConfig
+
+    src = cs.colmap_project(tmp_path / "cap")
+    args = ["import", "colmap", str(src), "--out", str(tmp_path / "ds"), "--no-sparse-depth"]
+    assert main(args) == 0
+
+    def worst(data) -> float:  # noqa: ANN001 (the worst of the pairs that matched)
+        measured = [c.epipolar_px for c in find_pieces_in_data(data)[1] if c.epipolar_px]
+        assert len(measured) >= N - 3
+        return max(measured)
+
+    for cfg in (DataConfig(), DataConfig(downscale=2)):
+        assert worst(load_scene_data(tmp_path / "ds", cfg)) < 1.0, cfg
+    (tmp_path / "ds" / "images_2").mkdir()
+    for photo in sorted((tmp_path / "ds" / "images").iterdir()):
+        small = cv2.resize(cv2.imread(str(photo)), (160, 120), interpolation=cv2.INTER_AREA)
+        cv2.imwrite(str(tmp_path / "ds" / "images_2" / photo.name), small)
+    data = load_scene_data(tmp_path / "ds", DataConfig(downscale=2))
+    assert data.pre_shrunk and worst(data) < 1.0
+    still = np.repeat(data.cameras.camera_to_world[:1], len(data), axis=0)
+    data = dataclasses.replace(
+        data, cameras=dataclasses.replace(data.cameras, camera_to_world=still)
+    )
+    assert {c.verdict(PieceCheckConfig()) for c in find_pieces_in_data(data)[1]} <= {"no overlap"}
 
 
 def test_a_check_config_out_of_range_is_a_data_error():

@@ -18,7 +18,7 @@ from neoedit.data.downscale import DataConfig
 from neoedit.data.pieces import PieceCheckConfig, find_pieces_in_data
 from neoedit.data.scene_data import SceneData
 from neoedit.data.sparse_depth import is_sparse
-from neoedit.errors import NeoWarning
+from neoedit.errors import DataError, MissingFramesWarning, NeoWarning
 from neoedit.training.defaults import BOX_SOURCES, scene_box_and_source
 from neoedit.utils.progress import track
 
@@ -41,35 +41,36 @@ class InfoCommand:
 
     def run(self) -> None:
         c = Console()
-        with warnings.catch_warnings(record=True) as caught:  # missing frames: listed, not fatal
-            warnings.simplefilter("always", NeoWarning)
-            d = load_scene_data(self.data, dataclasses.replace(self.data_cfg, skip_missing=True))
-        missing = [str(w.message) for w in caught if "image not found" in str(w.message)]
+        try:
+            with warnings.catch_warnings(record=True) as caught:  # missing frames: listed
+                warnings.simplefilter("always", NeoWarning)
+                d = load_scene_data(
+                    self.data, dataclasses.replace(self.data_cfg, skip_missing=True)
+                )
+        except DataError:  # another fault too: say it as neo train would (missing images first)
+            load_scene_data(self.data, self.data_cfg)
+            raise
+        missing = [str(w.message) for w in caught if issubclass(w.category, MissingFramesWarning)]
         for w in caught:
-            if str(w.message) not in missing:
+            if not issubclass(w.category, MissingFramesWarning):
                 warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
         c.print(f"[bold]{escape(str(d.root))}[/]: {len(d)} frames of {d.width}x{d.height}")
         if d.downscaled > 1:
             how = f"read from images_{d.downscaled}/" if d.pre_shrunk else "shrunk on load"
             c.print(f"downscaled {d.downscaled}x ({how})")
         if missing:
-            c.print(
-                f"[yellow]missing:[/] {escape(missing[0])}; neo train refuses the dataset "
-                "unless given --skip-missing"
-            )
+            what = missing[0].removesuffix("; those frames are skipped")
+            c.print(f"[yellow]missing:[/] {escape(what)}; training needs --skip-missing")
         c.print(f"lenses: {escape(d.lens_note)}")
         _print_contents(c, d)
         if self.check_poses and len(d) > 1:
             _print_pose_check(c, d)
+        options = dataclasses.asdict(self.data_cfg) | {"skip_missing": bool(missing)}
         flags = "".join(
-            f" --{k.replace('_', '-')} {v}"
-            if not isinstance(v, bool)
-            else f" --{k.replace('_', '-')}"
-            for k, v in dataclasses.asdict(self.data_cfg).items()
-            if v and v != 1
+            f" --{k.replace('_', '-')}" + ("" if isinstance(v, bool) else f" {v}")
+            for k, v in options.items()
+            if (v if isinstance(v, bool) else v not in (None, 1))
         )
-        if missing and not self.data_cfg.skip_missing:
-            flags += " --skip-missing"
         c.print(f"train it: neo train {escape(str(self.data))}{flags} --out <scene folder>")
 
 
@@ -129,5 +130,4 @@ def _print_pose_check(c: Console, d: SceneData) -> None:
         )
     for ch, v in zip(checks, verdicts, strict=True):
         if v in ("break", "doubtful"):
-            names = f"{d.file_paths[ch.first]} -> {d.file_paths[ch.first + 1]}"
-            c.print(f"  {v}: {escape(names)}: {escape(ch.evidence())}")
+            c.print(f"  {v}: {escape(ch.describe(d.file_paths))}")

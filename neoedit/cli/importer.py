@@ -164,11 +164,11 @@ def print_report(report: ImportReport) -> None:
         c.print(f"[yellow]the model is in {len(report.pieces)} inconsistent pieces:[/]")
         for first, last, n in report.pieces:
             c.print(f"  {first}..{last}: {n} photos")
-    for first, second, evidence in report.doubts:
-        c.print(
-            f"[yellow]warning:[/] {escape(first)} -> {escape(second)}: {escape(evidence)}; too "
-            "weak to call the model broken (imported); if renders are blurry there, re-run "
-            "structure-from-motion (neo process)"
+    for doubt in report.doubts:
+        Console(stderr=True).print(
+            f"[yellow]warning:[/] {escape(doubt)}; too weak to call the model broken "
+            "(imported); if renders are blurry near these photos, check their poses",
+            highlight=False,
         )
     c.print(f"up: {o.up_source}; scale x{o.scale:.4g} ({o.scale_source})")
     if o.scale_source.startswith("ASSUMED"):

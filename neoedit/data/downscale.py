@@ -133,6 +133,7 @@ def _copies(
 ) -> tuple[list[tuple[int, dict[str, Any]]], list[Lens]] | str:
     """:func:`pre_shrunk`'s frames and lenses, or why the copies cannot be used."""
     moved_frames, scaled = [], []
+    taken: dict[str, int] = {}
     for (i, frame), lens in zip(frames, lenses, strict=True):
         moved = dict(frame)
         for key, prefix in PRE_SHRUNK_FOLDERS.items():
@@ -140,6 +141,10 @@ def _copies(
                 copy = Path(f"{prefix}{factor}") / Path(frame[key]).name
                 if not (root / copy).is_file():
                     return f"it has no {copy.as_posix()} (frame {i})"
+                if taken.setdefault(copy.as_posix(), i) != i:  # cam0/1.png and cam1/1.png
+                    return (
+                        f"frames {taken[copy.as_posix()]} and {i} would both read {copy.as_posix()}"
+                    )
                 moved[key] = copy.as_posix()
         if "instance_path" in frame:
             return "the frames' instance images have no shrunk copies"

@@ -86,9 +86,9 @@ class ImportReport:
     orientation: Orientation
     checks: list[PairCheck]
     """Every consecutive pair examined with feature matches (:mod:`neoedit.data.pieces`)."""
-    doubts: list[tuple[str, str, str]] = field(default_factory=list)
-    """(first name, second name, evidence) of the pairs whose matches disagree with the
-    model's poses, too weakly to call a break: imported, with a warning."""
+    doubts: list[str] = field(default_factory=list)
+    """'first -> second: evidence' of the pairs whose matches disagree with the model's
+    poses, too weakly to call a break: imported, with a warning."""
     sparse_depth: dict | None = None
     """What the sparse depth holds (points, median pixels per photo, unit), None if none."""
 
@@ -106,10 +106,7 @@ def _choose(
         k = int(choice) - 1
         return pieces[k], f"piece {k + 1} of {len(pieces)}: {spans[k]}"
     listing = "\n".join(f"  piece {k + 1}: {s}" for k, s in enumerate(spans))
-    evidence = "\n".join(
-        f"  {capture.names[c.first]} -> {capture.names[c.first + 1]}: {c.evidence()}"
-        for c in breaks
-    )
+    evidence = "\n".join(f"  {c.describe(capture.names)}" for c in breaks)
     if choice == "check":
         raise DataError(
             f"{capture.source}: this model is broken into {len(pieces)} inconsistent pieces "
@@ -190,15 +187,9 @@ def import_capture(
     pieces, checks = find_pieces(capture, cfg.pieces)
     breaks = [c for c in checks if c.is_break(cfg.pieces)]
     index, chosen = _choose(capture, pieces, cfg.piece, breaks)
+    doubts = [c.describe(capture.names) for c in checks if c.verdict(cfg.pieces) == "doubtful"]
     part = capture.subset(index)
-    if len(part) < 3:
-        raise DataError(f"only {len(part)} photos to import; need at least 3")
-    output_names = [f"images/{Path(n).with_suffix('.png').as_posix()}" for n in part.names]
-    if len(set(output_names)) != len(output_names):
-        raise DataError(
-            f"{capture.source}: two photos would both be written as the same PNG (same name "
-            "with different suffixes); rename one"
-        )
+    output_names = _output_names(part)
     frame = orient(part, cfg.orient)
     width = next(iter(sizes))[0]
     scale = min(1.0, cfg.max_width / width) if cfg.max_width else 1.0
@@ -250,14 +241,22 @@ def import_capture(
     spans = [(capture.names[p[0]], capture.names[p[-1]], len(p)) for p in pieces]
     h, w = frames[0]["h"], frames[0]["w"]
     summary = meta["neoedit_import"].get("sparse_depth")
-    doubts = [
-        (capture.names[c.first], capture.names[c.first + 1], c.evidence())
-        for c in checks
-        if c.verdict(cfg.pieces) == "doubtful"
-    ]
     return ImportReport(
         Path(out), len(frames), (w, h), spans, chosen, frame, checks, doubts, summary
     )
+
+
+def _output_names(part: Capture) -> list[str]:
+    """The dataset's image paths of the photos to import (at least 3, each PNG unique)."""
+    if len(part) < 3:
+        raise DataError(f"only {len(part)} photos to import; need at least 3")
+    output_names = [f"images/{Path(n).with_suffix('.png').as_posix()}" for n in part.names]
+    if len(set(output_names)) != len(output_names):
+        raise DataError(
+            f"{part.source}: two photos would both be written as the same PNG (same name "
+            "with different suffixes); rename one"
+        )
+    return output_names
 
 
 def _depth_writer(

@@ -61,7 +61,7 @@ from neoedit.data.validate import (
     check_rotation,
     finite_number,
 )
-from neoedit.errors import DataError, NeoWarning
+from neoedit.errors import DataError, MissingFramesWarning
 
 INTRINSIC_KEYS = ("fl_x", "fl_y", "cx", "cy", "w", "h")
 HOLDOUT_EVERY = 8
@@ -215,7 +215,7 @@ def _drop_missing(
         )
     if len(missing) == len(frames):
         raise DataError(f"{what}; no frame is left")
-    warnings.warn(f"{what}; those frames are skipped", NeoWarning, stacklevel=3)
+    warnings.warn(f"{what}; those frames are skipped", MissingFramesWarning, stacklevel=3)
     gone = {i for i, _ in missing}
     return [(i, f) for i, f in frames if i not in gone], frozenset(_norm(p) for _, p in missing)
 

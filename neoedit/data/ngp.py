@@ -26,9 +26,7 @@ def box_ok(box: np.ndarray) -> bool:
 
 
 def ngp_box(meta: dict[str, Any], tf_path: Path) -> np.ndarray | None:
-    """instant-ngp's scene box in the poses' coordinates (None without ``aabb_scale``).
-    instant-ngp maps a pose's point p to ``p * scale + offset`` and bounds the scene by the
-    cube of side ``aabb_scale`` centred on (0.5, 0.5, 0.5) there."""
+    """instant-ngp's scene box in the poses' coordinates (None without ``aabb_scale``)."""
     where = f"{tf_path}: instant-ngp"
     scale = finite_number(meta, "scale", where) if "scale" in meta else NGP_SCALE
     if scale <= 0:

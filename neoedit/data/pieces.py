@@ -18,20 +18,20 @@ fitted to the matches) and the model's (the epipolar lines its poses predict). A
   explains at most ``max_agree_share`` as many of the candidates;
 - **doubtful** (a warning with the evidence, the import goes on) when the median is above
   ``max_epipolar_px`` but the evidence is weaker: too few matches for a clear geometry of
-  their own, or a model that explains about as many (a repeating texture, unknown lens
-  distortion, noisy poses);
+  their own, or a model that still explains a good share of them (a repeating texture
+  whose best geometry is shifted by a period; mildly noisy poses);
 - consistent otherwise. Pairs that do not overlap (an unordered collection) are never breaks.
 
 Measured (``benchmarks/bench_pieces.py``): across beer_can's three folds the photos explain
-26-40 matches 46-79 px from the model's lines and the model 1-2; NEO-Sim's checker table
-gives a wrong geometry of 18-24 matches (shifted by a square) 14-16 px from the lines of
-poses that are right.
+26-40 matches 46-79 px from the model's lines and the model 0-3; NEO-Sim's checker table
+gives a wrong geometry of 18-24 matches (shifted by a square) 11-16 px from the lines of
+poses that are right, which explain 8-16.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
@@ -59,7 +59,8 @@ class PieceCheckConfig:
     textureless backdrop) is no evidence against the poses."""
     max_epipolar_px: float = 10.0
     """Median distance of the matches to the epipolar lines of the model's poses, in pixels
-    at ``match_width_px``, above which the poses may contradict the photos. Consistent pairs
+    of the photos as matched (shrunk to ``match_width_px`` if wider), above which the poses
+    may contradict the photos. Consistent pairs
     measure under 1 px with a lens model, up to ~5 px when the lens distortion is unknown
     (LLFF); pairs across a folded break measure tens of pixels."""
     agree_px: float = 3.0
@@ -93,10 +94,12 @@ class PairCheck:
     """The pair is photo ``first`` and photo ``first + 1``."""
     shared_points: int
     matches: int
-    """Matches the photos' own fundamental matrix explains (0: too few candidates)."""
+    """Matches the photos' own fundamental matrix explains (with too few candidates for
+    one: the candidates)."""
     epipolar_px: float | None
-    """Median epipolar distance of those matches under the model's poses (None: too few
-    matches to tell)."""
+    """Median epipolar distance of those matches under the model's poses, in pixels of the
+    photos as matched (at most ``match_width_px`` wide); None: too few matches, or the two
+    cameras at one place (no epipolar geometry to test)."""
     candidates: int = 0
     """Ratio-test matches between the two photos."""
     agree: int = 0
@@ -115,10 +118,14 @@ class PairCheck:
     def is_break(self, cfg: PieceCheckConfig) -> bool:
         return self.verdict(cfg) == "break"
 
+    def describe(self, names: list[str]) -> str:
+        """'first -> second: evidence', the photos named by ``names`` (in check order)."""
+        return f"{names[self.first]} -> {names[self.first + 1]}: {self.evidence()}"
+
     def evidence(self) -> str:
         """One line for a person: what the matches say about the model's poses."""
         if self.epipolar_px is None:
-            return f"{self.matches} matches: too few to tell"
+            return f"{self.matches} matches: too few to tell, or no baseline"
         return (
             f"of {self.candidates} matches, the photos' own geometry explains {self.matches} "
             f"(they lie {self.epipolar_px:.1f} px from the model's epipolar lines, median), the "
@@ -137,6 +144,12 @@ class _Views:
     """(K with OpenCV's pixel-centre convention, OpenCV distortion coefficients)."""
     camera_to_world: np.ndarray
     """(N,4,4), OpenGL axes."""
+    valid: Callable[[int], np.ndarray | None] = lambda i: None  # noqa: E731
+    """Photo i's pixels worth matching (bool, full size; None: all): an undistorted
+    image's smeared border is not."""
+    _features: dict[int, tuple] = field(default_factory=dict)
+    """Features of the last photo matched (each photo is the second of one pair and the
+    first of the next)."""
 
 
 def _capture_views(capture: Capture) -> _Views:
@@ -163,22 +176,34 @@ def _data_views(data: SceneData) -> _Views:
         k = np.array([[c.fx[i], 0.0, c.cx[i] - 0.5], [0.0, c.fy[i], c.cy[i] - 0.5], [0, 0, 1]])
         return k, np.zeros(4)
 
+    mask = data.loss_mask
     return _Views(
         len(data),
         lambda i: cv2.cvtColor(data.images[i], cv2.COLOR_RGB2GRAY),
         lens,
         c.camera_to_world,
+        lambda i: None if mask is None else mask[i],
     )
 
 
-def _read_grey(views: _Views, i: int, width: int) -> tuple[np.ndarray, float]:
+def _features(views: _Views, i: int, width: int) -> tuple:
+    """SIFT keypoints and descriptors of photo i, matched at most ``width`` wide, and that
+    scale; kept for the next pair."""
     import cv2
 
-    image = views.grey(i)
-    scale = min(1.0, width / image.shape[1])
-    if scale < 1.0:
-        image = cv2.resize(image, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
-    return image, scale
+    if i not in views._features:
+        image, valid = views.grey(i), views.valid(i)
+        scale = min(1.0, width / image.shape[1])
+        if scale < 1.0:
+            image = cv2.resize(image, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+        mask = None
+        if valid is not None:
+            size = (int(image.shape[1]), int(image.shape[0]))
+            mask = cv2.resize(valid.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST)
+        sift = cv2.SIFT_create(nfeatures=3000)  # type: ignore[attr-defined]
+        views._features.clear()
+        views._features[i] = (*sift.detectAndCompute(image, mask), scale)
+    return views._features[i]
 
 
 def _normalised(views: _Views, i: int, uv: np.ndarray) -> np.ndarray:
@@ -203,13 +228,12 @@ def _relative_essential(c2w: np.ndarray, i: int, j: int) -> np.ndarray:
 
 def _matches(views: _Views, i: int, cfg: PieceCheckConfig):  # noqa: ANN202 (arrays, scales)
     """SIFT ratio-test matches of photos i and i+1: full-resolution pixel coordinates
-    (OpenCV convention) in each, and the matching scale of photo i."""
+    (OpenCV convention) in each, and the two photos' matching scales."""
     import cv2
 
-    (img_i, s_i), (img_j, s_j) = (_read_grey(views, k, cfg.match_width_px) for k in (i, i + 1))
-    sift = cv2.SIFT_create(nfeatures=3000)  # type: ignore[attr-defined]
-    kp_i, des_i = sift.detectAndCompute(img_i, None)
-    kp_j, des_j = sift.detectAndCompute(img_j, None)
+    kp_i, des_i, s_i = _features(views, i, cfg.match_width_px)
+    kp_j, des_j, s_j = _features(views, i + 1, cfg.match_width_px)
+    views._features[i + 1] = (kp_j, des_j, s_j)  # the next pair's first photo
     if des_i is None or des_j is None or len(kp_i) < 8 or len(kp_j) < 8:
         return np.zeros((0, 2)), np.zeros((0, 2)), s_i, s_j
     pairs = cv2.BFMatcher().knnMatch(des_i, des_j, k=2)
@@ -233,18 +257,16 @@ def _check_pair(views: _Views, i: int, shared: int, cfg: PieceCheckConfig) -> Pa
     if inlier is None or int(inlier.sum()) < cfg.min_matches:
         return PairCheck(i, shared, 0 if inlier is None else int(inlier.sum()), None, n)
     keep = inlier.ravel().astype(bool)
+    essential = _relative_essential(views.camera_to_world, i, j)
+    if np.abs(essential).max() < 1e-9:  # one camera place: no epipolar line to test
+        return PairCheck(i, shared, int(keep.sum()), None, n)
     h_i = np.c_[_normalised(views, i, uv_i), np.ones(n)]
     h_j = np.c_[_normalised(views, j, uv_j), np.ones(n)]
-    lines = h_i @ _relative_essential(views.camera_to_world, i, j).T  # lines in photo j
+    lines = h_i @ essential.T  # lines in photo j
     dist = np.abs((h_j * lines).sum(1)) / np.linalg.norm(lines[:, :2], axis=1).clip(1e-12)
     dist_px = dist * views.lens(j)[0][0, 0] * s_j
     agree = int((dist_px <= cfg.agree_px).sum())  # of every candidate: the model's support
     return PairCheck(i, shared, int(keep.sum()), float(np.median(dist_px[keep])), n, agree)
-
-
-def check_pair(capture: Capture, i: int, shared: int, cfg: PieceCheckConfig) -> PairCheck:
-    """Match photos i and i+1 of ``capture`` and measure them against its poses."""
-    return _check_pair(_capture_views(capture), i, shared, cfg)
 
 
 def _pieces(
@@ -263,6 +285,8 @@ def find_pieces(
     """Index arrays of the consistent pieces (in name order) and the pairs examined."""
     cfg = cfg or PieceCheckConfig()
     n = len(capture)
+    if n < 2:
+        return [np.arange(n)], []
     if capture.point_tracks:
         shared = capture.shared_with_next()
         limit = min(cfg.min_shared, cfg.shared_fraction * float(np.median(shared)))

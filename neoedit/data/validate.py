@@ -3,6 +3,7 @@ so by ``neo render --cameras``): bad values fail with a clear :class:`DataError`
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from typing import Any
 
@@ -118,11 +119,18 @@ def check_scan_record(record: Any, where: str) -> None:
 def finite_number(d: Mapping[str, Any], key: str, where: str) -> float:
     """``d[key]`` as a float: a :class:`DataError` naming it unless it is a finite number."""
     value = d.get(key)
-    if not isinstance(value, (int, float)) or isinstance(value, bool) or not np.isfinite(value):
-        raise DataError(f"{where}: '{key}' must be a finite number, got {value!r}")
+    if not isinstance(value, (int, float)) or not is_finite_number(value):
+        shown = repr(value) if len(repr(value)) < 40 else repr(value)[:37] + "..."
+        raise DataError(f"{where}: '{key}' must be a finite number, got {shown}")
     return float(value)
 
 
 def is_finite_number(v: Any) -> bool:
-    """A JSON value that is a finite number (not a bool)."""
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and bool(np.isfinite(v))
+    """A JSON value that is a finite number (not a bool; an integer too large for a float
+    is not)."""
+    if not isinstance(v, (int, float)) or isinstance(v, bool):
+        return False
+    try:
+        return math.isfinite(float(v))
+    except OverflowError:
+        return False
