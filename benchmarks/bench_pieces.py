@@ -170,11 +170,14 @@ def _processed(case: str, photos: Path, out: Path, extra: list[str], expect: str
     code = subprocess.run([sys.executable, "-m", "neoedit", *args], check=False).returncode
     seconds = time.perf_counter() - t
     meta = json.loads((out / "transforms.json").read_text()) if code == 0 else {}
-    n = len(meta.get("frames", []))
-    row = {"case": case, "photos": n, "exit": code, "seconds": round(seconds, 1)}
-    row.update(import_="imported" if code == 0 else "refused", expected=expect)
-    row["import"] = row.pop("import_")
-    return row
+    return {
+        "case": case,
+        "photos": len(meta.get("frames", [])),
+        "exit": code,
+        "seconds": round(seconds, 1),
+        "import": "imported" if code == 0 else "refused",
+        "expected": expect,
+    }
 
 
 def main() -> None:

@@ -232,8 +232,7 @@ def _matches(views: _Views, i: int, cfg: PieceCheckConfig):  # noqa: ANN202 (arr
     import cv2
 
     kp_i, des_i, s_i = _features(views, i, cfg.match_width_px)
-    kp_j, des_j, s_j = _features(views, i + 1, cfg.match_width_px)
-    views._features[i + 1] = (kp_j, des_j, s_j)  # the next pair's first photo
+    kp_j, des_j, s_j = _features(views, i + 1, cfg.match_width_px)  # kept for the next pair
     if des_i is None or des_j is None or len(kp_i) < 8 or len(kp_j) < 8:
         return np.zeros((0, 2)), np.zeros((0, 2)), s_i, s_j
     pairs = cv2.BFMatcher().knnMatch(des_i, des_j, k=2)
