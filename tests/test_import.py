@@ -222,14 +222,17 @@ def _arc_photos(folder: Path, n: int = 20) -> np.ndarray:
     return c2w
 
 
-def test_process_recovers_the_cameras_from_the_photos_alone(tmp_path, capsys):
+@pytest.mark.parametrize("mapper", ["auto", "incremental"])
+def test_process_recovers_the_cameras_from_the_photos_alone(tmp_path, capsys, mapper):
     """Structure-from-motion (pycolmap, CPU) on rendered photos: the imported cameras stand
-    at their true height and distance, with the true focal length."""
+    at their true height and distance, with the true focal length, with either mapper."""
     _arc_photos(tmp_path / "photos")
     out = tmp_path / "ds"
-    args = ["process", str(tmp_path / "photos"), "--out", str(out)]
+    args = ["process", str(tmp_path / "photos"), "--out", str(out), "--sfm.mapper", mapper]
     assert main([*args, "--orient.camera-distance-m", str(cs.TRUE_DISTANCE)]) == 0
-    assert "20 of 20 photos registered" in " ".join(capsys.readouterr().out.split())
+    said = " ".join(capsys.readouterr().out.split())
+    assert "20 of 20 photos registered" in said
+    assert f"({'global' if mapper == 'auto' else mapper} mapper)" in said
     data = load_scene_data(out)
     centres = data.cameras.camera_to_world[:, :3, 3]
     np.testing.assert_allclose(centres[:, 2], cs.HEIGHT, atol=0.005)
@@ -241,10 +244,41 @@ def test_process_recovers_the_cameras_from_the_photos_alone(tmp_path, capsys):
     assert meta["neoedit_import"]["source"] == str(tmp_path / "photos")  # not the work folder
 
 
+def test_process_maps_incrementally_too_when_the_global_model_breaks(tmp_path, capsys, monkeypatch):
+    """'auto' keeps the global model unless the consistency check breaks it; then the
+    incremental mapper runs as well and the model with the larger consistent piece wins."""
+    from neoedit.data import sfm
+
+    _arc_photos(tmp_path / "photos")
+    check = sfm._consistent_pieces
+
+    def global_breaks(result):  # noqa: ANN001, ANN202
+        pieces = check(result)
+        if "model_global" in str(result.model):
+            return np.array_split(np.concatenate(pieces), 2)  # as if broken in two
+        return pieces
+
+    monkeypatch.setattr(sfm, "_consistent_pieces", global_breaks)
+    assert main(["process", str(tmp_path / "photos"), "--out", str(tmp_path / "ds")]) == 0
+    said = " ".join(capsys.readouterr().out.split())
+    assert "global: 20 of 20 photos registered, 2 consistent pieces" in said
+    assert "incremental: 20 of 20 photos registered, 1 consistent piece" in said
+    assert "(incremental mapper)" in said
+    assert len(load_scene_data(tmp_path / "ds")) == 20
+
+
 def test_process_says_clearly_when_too_few_photos_register(tmp_path, capsys):
-    src = cs.colmap_project(tmp_path / "cap")  # 12 photos 30 degrees apart: too little overlap
-    assert main(["process", str(src / "images"), "--out", str(tmp_path / "ds")]) == 2
-    assert "registered only" in " ".join(capsys.readouterr().err.split())
+    photos = tmp_path / "photos"
+    _arc_photos(photos, n=8)
+    rng = np.random.default_rng(0)
+    for i in range(9):  # photos of nothing the others show: they cannot register
+        noise = rng.integers(0, 255, (240, 320, 3), dtype=np.uint8)
+        cv2.imwrite(str(photos / f"{100 + i:04d}.jpg"), cv2.GaussianBlur(noise, (5, 5), 0))
+    assert main(["process", str(photos), "--out", str(tmp_path / "ds")]) == 2
+    assert "registered only 8 of 17" in " ".join(capsys.readouterr().err.split())
+    assert not (tmp_path / "ds").exists()
+    assert main(["process", str(photos), "--out", str(tmp_path / "ds"), "--sfm.mapper", "x"]) == 2
+    assert "--sfm.mapper must be one of auto, global, incremental" in capsys.readouterr().err
     assert not (tmp_path / "ds").exists()
     assert main(["process", str(tmp_path / "nothing"), "--out", str(tmp_path / "ds")]) == 2
 

@@ -239,10 +239,12 @@ class ProcessCommand:
                 video_frames(src, images, self.sfm.video_frames)
             result = run_sfm(images, work, self.sfm)
             seconds = time.perf_counter() - t0
+            if len(result.tried) > 1:  # the first mapper's model was broken: say why
+                Console().print("mappers tried: " + "; ".join(result.tried))
             Console().print(
-                f"structure-from-motion: {result.registered} of {result.total} photos "
-                f"registered ({result.models} model{'s' if result.models > 1 else ''}) in "
-                f"{seconds:.0f} s"
+                f"structure-from-motion ({result.mapper} mapper): {result.registered} of "
+                f"{result.total} photos registered ({result.models} model"
+                f"{'s' if result.models > 1 else ''}) in {seconds:.0f} s"
             )
             # named by the photos in messages (the model lives in a temporary folder)
             capture = dataclasses.replace(read_colmap(result.model, images), source=src)
