@@ -233,6 +233,7 @@ def test_process_recovers_the_cameras_from_the_photos_alone(tmp_path, capsys, ma
     said = " ".join(capsys.readouterr().out.split())
     assert "20 of 20 photos registered" in said
     assert f"({'global' if mapper == 'auto' else mapper} mapper)" in said
+    assert "mappers tried" not in said  # the global model was consistent: no second mapper
     data = load_scene_data(out)
     centres = data.cameras.camera_to_world[:, :3, 3]
     np.testing.assert_allclose(centres[:, 2], cs.HEIGHT, atol=0.005)
@@ -244,27 +245,60 @@ def test_process_recovers_the_cameras_from_the_photos_alone(tmp_path, capsys, ma
     assert meta["neoedit_import"]["source"] == str(tmp_path / "photos")  # not the work folder
 
 
+def _poses(model: Path) -> dict:
+    rec = pycolmap.Reconstruction(str(model))
+    return {im.name: im.cam_from_world().translation for im in rec.images.values()}
+
+
 def test_process_maps_incrementally_too_when_the_global_model_breaks(tmp_path, capsys, monkeypatch):
     """'auto' keeps the global model unless the consistency check breaks it; then the
-    incremental mapper runs as well and the model with the larger consistent piece wins."""
+    incremental mapper runs as well and the model with the larger consistent piece is the
+    one the dataset gets."""
     from neoedit.data import sfm
 
     _arc_photos(tmp_path / "photos")
-    check = sfm._consistent_pieces
+    check, seen = sfm._consistent_pieces, {}
 
-    def global_breaks(result):  # noqa: ANN001, ANN202
-        pieces = check(result)
-        if "model_global" in str(result.model):
+    def global_breaks(result, progress):  # noqa: ANN001, ANN202
+        pieces = check(result, progress)
+        seen[result.mapper] = _poses(result.model)
+        if result.mapper == "global":
             return np.array_split(np.concatenate(pieces), 2)  # as if broken in two
         return pieces
 
     monkeypatch.setattr(sfm, "_consistent_pieces", global_breaks)
     assert main(["process", str(tmp_path / "photos"), "--out", str(tmp_path / "ds")]) == 0
     said = " ".join(capsys.readouterr().out.split())
-    assert "global: 20 of 20 photos registered, 2 consistent pieces" in said
-    assert "incremental: 20 of 20 photos registered, 1 consistent piece" in said
+    assert "global: 20 of 20 photos registered, broken into 2 pieces" in said
+    assert "incremental: 20 of 20 photos registered, one consistent piece" in said
     assert "(incremental mapper)" in said
+    kept = _poses(tmp_path / "ds" / "colmap" / "sparse" / "0")
+    for name, t in kept.items():  # the dataset's model is the incremental one
+        np.testing.assert_allclose(t, seen["incremental"][name])
+    assert not all(np.allclose(t, seen["global"][n]) for n, t in kept.items())
     assert len(load_scene_data(tmp_path / "ds")) == 20
+
+
+def test_process_maps_incrementally_when_the_global_mapper_fails(tmp_path, capsys, monkeypatch):
+    from neoedit.data import sfm
+
+    _arc_photos(tmp_path / "photos", n=12)
+    run = sfm._run_mapper
+
+    def global_fails(pycolmap, mapper, *args):  # noqa: ANN001, ANN202
+        if mapper == "global":
+            raise RuntimeError("Check failed: view graph")  # as COLMAP reports a failed check
+        return run(pycolmap, mapper, *args)
+
+    monkeypatch.setattr(sfm, "_run_mapper", global_fails)
+    assert main(["process", str(tmp_path / "photos"), "--out", str(tmp_path / "ds")]) == 0
+    said = " ".join(capsys.readouterr().out.split())
+    assert "global: failed (Check failed: view graph)" in said
+    assert "(incremental mapper): 12 of 12 photos registered" in said
+    args = ["process", str(tmp_path / "photos"), "--out", str(tmp_path / "d2")]
+    assert main([*args, "--sfm.mapper", "global"]) == 2  # asked for by name: no fallback
+    assert "structure-from-motion failed" in " ".join(capsys.readouterr().err.split())
+    assert not (tmp_path / "d2").exists()
 
 
 def test_process_says_clearly_when_too_few_photos_register(tmp_path, capsys):

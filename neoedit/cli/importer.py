@@ -230,6 +230,7 @@ class ProcessCommand:
             raise NeoError(f"{src}: not a photo folder or a video ({', '.join(VIDEO_SUFFIXES)})")
         cfg = import_config(self)
         cfg.check()
+        self.sfm.check()
         check_writable_output(self.out, [src], kind="dataset", overwrite=self.overwrite)
         with work_directory(self.out) as work:
             t0 = time.perf_counter()
@@ -239,7 +240,7 @@ class ProcessCommand:
                 video_frames(src, images, self.sfm.video_frames)
             result = run_sfm(images, work, self.sfm)
             seconds = time.perf_counter() - t0
-            if len(result.tried) > 1:  # the first mapper's model was broken: say why
+            if len(result.tried) > 1:  # the first mapper failed or its model broke: say so
                 Console().print("mappers tried: " + "; ".join(result.tried))
             Console().print(
                 f"structure-from-motion ({result.mapper} mapper): {result.registered} of "

@@ -7,7 +7,7 @@ sets), mapping; the model with the most registered images is kept.
 
 Mapping is global (GLOMAP's rotation averaging and global positioning, built into COLMAP)
 or incremental (COLMAP's image-by-image mapper). On bonsai (292 photos, 2 cores) the global
-mapper took 6 min and gave a clean camera ring (0.13-0.23 px between neighbours) where the
+mapper took 5.5 min and gave a clean camera ring (0.13-0.23 px between neighbours) where the
 incremental one took 22 min and bent the ring out of shape (consecutive photos up to 50x the
 median step apart; 2.6 px at such a step), which the consistency check, blind to scale,
 passes. On beer_can it is the other way round (global: 2-4 consistent pieces, the
@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from neoedit.data.capture import LENS_MODELS
-from neoedit.data.colmap import IMAGE_SUFFIXES
+from neoedit.data.colmap import IMAGE_SUFFIXES, read_colmap
 from neoedit.errors import DataError
 from neoedit.utils.progress import make_progress
 
@@ -43,8 +43,9 @@ class SfMConfig:
     """Successors each image is matched with in sequential matching."""
     mapper: str = "auto"
     """'global' (rotation averaging + global positioning: fast at hundreds of photos),
-    'incremental' (image by image) or 'auto' (global; incremental too when the global model
-    breaks into inconsistent pieces, keeping the better of the two)."""
+    'incremental' (image by image) or 'auto' (global; incremental too when the global mapper
+    fails, registers too few photos or its model breaks into inconsistent pieces, keeping
+    the model with the larger consistent piece)."""
     max_image_size: int = 1024
     """Photos are read at most this large (longest side) for features."""
     max_features: int = 4096
@@ -57,6 +58,16 @@ class SfMConfig:
     seed: int = field(default=0, metadata={"max": 2**31 - 1})
     """COLMAP's random seed (a C int: at most 2^31 - 1)."""
 
+    def check(self) -> None:
+        """The named choices, before any work (numbers: :func:`check_options`)."""
+        for flag, value, allowed in (
+            ("--sfm.camera-model", self.camera_model, LENS_MODELS),
+            ("--sfm.matcher", self.matcher, MATCHERS),
+            ("--sfm.mapper", self.mapper, MAPPERS),
+        ):
+            if value not in allowed:
+                raise DataError(f"{flag} must be one of {', '.join(allowed)}, got {value!r}")
+
 
 @dataclass
 class SfMResult:
@@ -66,7 +77,7 @@ class SfMResult:
     total: int
     models: int
     """How many separate models the mapper made (more than one: the photos fell apart)."""
-    mapper: str = "incremental"
+    mapper: str
     """The mapper whose model this is ('global' or 'incremental')."""
     tried: list[str] = field(default_factory=list)
     """One line per mapper run: its model's registered photos and consistent pieces."""
@@ -107,14 +118,7 @@ def run_sfm(images: Path, work: Path, cfg: SfMConfig) -> SfMResult:
     names = list_images(images)
     if len(names) < 3:
         raise DataError(f"{images}: {len(names)} photos; structure-from-motion needs at least 3")
-    if cfg.camera_model not in LENS_MODELS:
-        raise DataError(
-            f"--sfm.camera-model must be one of {', '.join(LENS_MODELS)}, got {cfg.camera_model!r}"
-        )
-    if cfg.mapper not in MAPPERS:
-        raise DataError(f"--sfm.mapper must be one of {', '.join(MAPPERS)}, got {cfg.mapper!r}")
-    if cfg.matcher not in MATCHERS:
-        raise DataError(f"--sfm.matcher must be one of {', '.join(MATCHERS)}, got {cfg.matcher!r}")
+    cfg.check()
     pycolmap.logging.minloglevel = 2  # our progress instead of COLMAP's log lines
     database = work / "database.db"
     work.mkdir(parents=True, exist_ok=True)
@@ -160,39 +164,60 @@ def _map(
     pycolmap: Any, database: Path, images: Path, work: Path, cfg: SfMConfig, progress: Any,
     total: int,
 ) -> SfMResult:  # fmt: skip
-    """Run the mapper(s) ``cfg.mapper`` names; the best model, written to ``work/model``."""
+    """Run the mapper(s) ``cfg.mapper`` names; the best model, written to
+    ``work/model_<mapper>``. With two, the second runs only when the first fails, registers
+    too few photos or breaks into inconsistent pieces."""
     order = ["global", "incremental"] if cfg.mapper == "auto" else [cfg.mapper]
-    best: tuple[tuple[int, int], SfMResult] | None = None
+    compare = len(order) > 1
+    best: tuple[tuple, SfMResult] | None = None
     tried: list[str] = []
     for mapper in order:
-        models = _run_mapper(pycolmap, mapper, database, images, work, cfg, progress, total)
-        result = _largest(models, work / f"model_{mapper}", images, total)
+        try:
+            models = _run_mapper(pycolmap, mapper, database, images, work, cfg, progress, total)
+        except (RuntimeError, ValueError) as e:  # COLMAP's checks failed on this view graph
+            if not compare:
+                raise
+            tried.append(f"{mapper}: failed ({e})")
+            continue
+        result = _largest(models, work / f"model_{mapper}", images, total, mapper)
         if result is None:
             tried.append(f"{mapper}: no model")
             continue
-        pieces = _consistent_pieces(result)
-        tried.append(
-            f"{mapper}: {result.registered} of {total} photos registered, "
-            f"{len(pieces)} consistent piece{'s' if len(pieces) > 1 else ''}"
-        )
-        score = (max(len(p) for p in pieces), result.registered)
+        enough = result.registered >= cfg.min_registered * total
+        pieces = _consistent_pieces(result, progress) if compare else None
+        tried.append(_describe(result, pieces))
+        largest = max(len(p) for p in pieces) if pieces is not None else 0
+        score = (enough, largest, result.registered)
         if best is None or score > best[0]:
-            best = (score, dataclasses.replace(result, mapper=mapper))
-        if len(pieces) == 1 and result.registered >= cfg.min_registered * total:
-            break  # consistent: no need for the other mapper
+            best = (score, result)
+        if enough and (pieces is None or len(pieces) == 1):
+            break  # one consistent model: no need for the other mapper
+    said = f" (mappers tried: {'; '.join(tried)})" if compare else ""
     if best is None:
         raise DataError(
             f"structure-from-motion registered none of the {total} photos of {images} (too "
-            "little overlap or texture between them?)"
+            f"little overlap or texture between them?){said}"
         )
     result = best[1]
     if result.registered < cfg.min_registered * total:
+        other = {"global": " or --sfm.mapper incremental", "incremental": " or --sfm.mapper global"}
         raise DataError(
             f"structure-from-motion registered only {result.registered} of {total} photos in "
-            f"its largest model ({result.models} models); take more overlapping photos or use "
-            "--sfm.matcher exhaustive"
+            f"its largest model ({result.models} model{'s' if result.models > 1 else ''})"
+            f"{said}; take more overlapping photos or use --sfm.matcher exhaustive"
+            + other.get(cfg.mapper, "")
         )
     return dataclasses.replace(result, tried=tried)
+
+
+def _describe(result: SfMResult, pieces: list | None) -> str:
+    """'global: 71 of 71 photos registered, broken into 4 pieces' (a line of ``tried``)."""
+    line = f"{result.mapper}: {result.registered} of {result.total} photos registered"
+    if pieces is None:
+        return line
+    return line + (
+        ", one consistent piece" if len(pieces) == 1 else f", broken into {len(pieces)} pieces"
+    )
 
 
 def _run_mapper(
@@ -216,12 +241,13 @@ def _run_mapper(
     )
 
 
-def _consistent_pieces(result: SfMResult) -> list:
+def _consistent_pieces(result: SfMResult, progress: Any) -> list:
     """The importer's consistency check on the model (pairs with few shared points only)."""
-    from neoedit.data.colmap import read_colmap
     from neoedit.data.pieces import find_pieces
 
+    task = progress.add_task(f"checking the {result.mapper} model", total=1, status="")
     pieces, _ = find_pieces(read_colmap(result.model, result.images))
+    progress.advance(task)
     return pieces
 
 
@@ -241,11 +267,11 @@ def match_pairs(pycolmap, database: Path, photos: int, cfg: SfMConfig) -> None: 
         pycolmap.match_exhaustive(database, device=pycolmap.Device.cpu)
 
 
-def _largest(models: dict, folder: Path, images: Path, total: int) -> SfMResult | None:
+def _largest(models: dict, folder: Path, images: Path, total: int, mapper: str) -> SfMResult | None:
     """The model with the most registered photos, written to ``folder``; None: no model."""
     if not models:
         return None
     rec = models[max(models, key=lambda k: models[k].num_reg_images())]
     folder.mkdir(parents=True, exist_ok=True)
     rec.write_binary(str(folder))
-    return SfMResult(folder, images, int(rec.num_reg_images()), total, len(models))
+    return SfMResult(folder, images, int(rec.num_reg_images()), total, len(models), mapper)
