@@ -593,12 +593,14 @@ def test_a_failed_triangulation_leaves_the_cameras_up(tmp_path, monkeypatch, cap
     assert not (tmp_path / "ds" / "depth").exists()
 
 
+@pytest.mark.parametrize("content", ["bounds", "points"])
 @pytest.mark.parametrize(("meet", "expected"), [(0.1, 0.3), (0.8, 0.8), (3.0, 1.5)])
-def test_a_forward_facing_look_centre_lies_where_the_photos_see_something(meet, expected):
+def test_a_forward_facing_look_centre_lies_where_the_photos_see_something(meet, expected, content):
     """Nearly parallel optical axes of a forward-facing capture meet wherever the hand's toe-in
     puts them (spinnerf_1's: a third of the way to the nearest thing seen): the look centre
     (and so the scale and the scene box) is moved along the view into the depth range of the
-    LLFF bounds, and kept where it lies when it is inside it."""
+    content — the LLFF bounds, or for photos processed by SfM (no bounds) the sparse points'
+    5th..95th depth percentiles — and kept where it lies when it is inside it."""
     from neoedit.cameras.cameras import look_at
     from neoedit.data.capture import Capture
     from neoedit.data.orient import look_centre
@@ -606,17 +608,43 @@ def test_a_forward_facing_look_centre_lies_where_the_photos_see_something(meet, 
     target = np.array([0.0, meet, 0.0])
     eyes = [np.array([x, 0.0, z]) for x in (-0.04, 0.0, 0.04) for z in (-0.03, 0.0, 0.03)]
     c2w = np.stack([look_at(e, target) for e in eyes])
+    rng = np.random.default_rng(0)
+    seen = np.linspace(0.3, 1.5, 101)  # depths straight ahead: 5th..95th percentile 0.36..1.44
     capture = Capture(
         source=Path("cap"),
         names=[f"{i}.png" for i in range(len(eyes))],
         image_dir=Path("cap"),
         camera_to_world=c2w,
         lenses=[],
-        bounds=np.tile([0.3, 1.5], (len(eyes), 1)),
+        bounds=np.tile([0.3, 1.5], (len(eyes), 1)) if content == "bounds" else None,
+        points=np.stack([rng.uniform(-0.2, 0.2, 101), seen, rng.uniform(-0.2, 0.2, 101)], 1),
     )
     centre = look_centre(capture)
     assert abs(centre[0]) < 1e-6 and abs(centre[2]) < 1e-6  # straight ahead of the cameras
+    if content == "points" and expected != meet:
+        expected = float(np.percentile(seen, 5 if meet < expected else 95))
     assert centre[1] == pytest.approx(expected, abs=1e-3)
+
+
+def test_a_ring_look_centre_is_where_the_axes_meet_whatever_the_points():
+    """Around an object the optical axes meet at it: the content test is for forward-facing
+    captures only (a ring's mean view is no direction to measure depths along)."""
+    from neoedit.cameras.cameras import look_at
+    from neoedit.data.capture import Capture
+    from neoedit.data.orient import look_centre
+
+    target = np.array([0.1, -0.2, 0.05])
+    angles = np.linspace(0, 2 * np.pi, 12, endpoint=False)
+    eyes = target + np.stack([np.cos(angles), np.sin(angles), np.full(12, 0.4)], 1)
+    capture = Capture(
+        source=Path("cap"),
+        names=[f"{i}.png" for i in range(12)],
+        image_dir=Path("cap"),
+        camera_to_world=np.stack([look_at(e, target) for e in eyes]),
+        lenses=[],
+        points=target + np.random.default_rng(0).normal(0, 2.0, (200, 3)),  # far-flung
+    )
+    np.testing.assert_allclose(look_centre(capture), target, atol=1e-6)
 
 
 def test_a_moved_copy_forgets_how_its_old_frame_was_levelled(sim_root: Path, tmp_path: Path):

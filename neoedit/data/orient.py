@@ -103,9 +103,10 @@ def look_centre(capture: Capture) -> np.ndarray:
     """The point the cameras look at: the point closest (least squares) to all optical axes
     when it lies in front of nearly all cameras (a walk around an object); for a forward-
     facing capture, whose axes are nearly parallel, a point straight ahead of the mean camera
-    at the scene's depth (the LLFF bounds, else the median depth of the sparse points). With
-    LLFF bounds, a least-squares point whose median depth lies outside the bounds' median
-    near..far range is moved along the mean view into it."""
+    at the scene's depth (the LLFF bounds, else the median depth of the sparse points). A
+    least-squares point of a forward-facing capture whose median depth lies outside the
+    content's near..far range (LLFF bounds, or the sparse points') is moved along the mean
+    view into it."""
     c2w = capture.camera_to_world
     origins = c2w[:, :3, 3]
     dirs = -c2w[:, :3, 2]  # OpenGL: the camera looks down -z
@@ -118,12 +119,13 @@ def look_centre(capture: Capture) -> np.ndarray:
         point = np.linalg.solve(a, b)
         depth = ((point - origins) * dirs).sum(1)
         if (depth > 0).mean() >= 0.9:
-            if capture.bounds is None:
+            content = _content_depths(capture, origins.mean(0), ahead, dirs)
+            if content is None:
                 return point
             # nearly parallel axes (a forward-facing capture) can meet closer than anything
             # the photos see, or beyond it: the point is then moved along the view to the
-            # nearest (farthest) depth of the scene's content (its LLFF bounds)
-            near, far = np.median(capture.bounds, axis=0)
+            # nearest (farthest) depth of the scene's content
+            near, far = content
             median = float(np.median(depth))
             if near <= median <= far:
                 return point
@@ -135,6 +137,21 @@ def look_centre(capture: Capture) -> np.ndarray:
     else:
         depth = float(np.median(np.linalg.norm(origins - origins.mean(0), axis=1))) or 1.0
     return origins.mean(0) + ahead * max(depth, 1e-6)
+
+
+def _content_depths(
+    capture: Capture, origin: np.ndarray, ahead: np.ndarray, dirs: np.ndarray
+) -> tuple[float, float] | None:
+    """Near and far depth of what a forward-facing capture sees: its LLFF bounds, else its
+    sparse points' 5th..95th depth percentiles along the mean view (photos processed by
+    SfM); None for a capture that does not face one way (a walk around an object)."""
+    if capture.bounds is not None:
+        near, far = np.median(capture.bounds, axis=0)
+        return float(near), float(far)
+    if len(capture.points) < 10 or np.linalg.norm(dirs.mean(0)) < 0.9:
+        return None
+    near, far = np.percentile((capture.points - origin) @ ahead, [5, 95])
+    return (float(near), float(far)) if near > 0 else None
 
 
 MIN_PLANE_POINTS = 50
