@@ -124,9 +124,12 @@ def look_centre(capture: Capture) -> np.ndarray:
                 return point
             # nearly parallel axes (a forward-facing capture) can meet closer than anything
             # the photos see, or beyond it: the point is then moved along the view to the
-            # nearest (farthest) depth of the scene's content
-            near, far = content
-            median = float(np.median(depth))
+            # nearest (farthest) depth of the scene's content, each depth measured as the
+            # content's is (per camera for bounds, from the mean camera for points)
+            near, far, from_mean = content
+            median = (
+                float((point - origins.mean(0)) @ ahead) if from_mean else float(np.median(depth))
+            )
             if near <= median <= far:
                 return point
             return origins.mean(0) + ahead * float(np.clip(median, near, far))
@@ -139,19 +142,25 @@ def look_centre(capture: Capture) -> np.ndarray:
     return origins.mean(0) + ahead * max(depth, 1e-6)
 
 
+FORWARD_FACING_DEG = 20.0
+"""A capture faces one way when every view is within this angle of the mean view."""
+
+
 def _content_depths(
     capture: Capture, origin: np.ndarray, ahead: np.ndarray, dirs: np.ndarray
-) -> tuple[float, float] | None:
-    """Near and far depth of what a forward-facing capture sees: its LLFF bounds, else its
-    sparse points' 5th..95th depth percentiles along the mean view (photos processed by
-    SfM); None for a capture that does not face one way (a walk around an object)."""
+) -> tuple[float, float, bool] | None:
+    """(near, far, measured from the mean camera) depth of what a forward-facing capture
+    sees: its LLFF bounds (per camera), else its sparse points' 5th..95th depth percentiles
+    from the mean camera along the mean view (photos processed by SfM); None for a capture
+    whose views spread wider (an arc or a walk around an object)."""
     if capture.bounds is not None:
         near, far = np.median(capture.bounds, axis=0)
-        return float(near), float(far)
-    if len(capture.points) < 10 or np.linalg.norm(dirs.mean(0)) < 0.9:
+        return float(near), float(far), False
+    spread = np.degrees(np.arccos(np.clip(dirs @ ahead, -1.0, 1.0))).max()
+    if len(capture.points) < 10 or spread > FORWARD_FACING_DEG:
         return None
     near, far = np.percentile((capture.points - origin) @ ahead, [5, 95])
-    return (float(near), float(far)) if near > 0 else None
+    return (float(near), float(far), True) if near > 0 else None
 
 
 MIN_PLANE_POINTS = 50

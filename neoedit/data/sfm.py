@@ -26,7 +26,7 @@ from typing import Any
 
 from neoedit.data.capture import LENS_MODELS
 from neoedit.data.colmap import IMAGE_SUFFIXES, read_colmap
-from neoedit.errors import DataError
+from neoedit.errors import DataError, NeoError
 from neoedit.utils.progress import make_progress
 
 VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm", ".MP4", ".MOV")
@@ -177,14 +177,20 @@ def _map(
         except (RuntimeError, ValueError) as e:  # COLMAP's checks failed on this view graph
             if not compare:
                 raise
-            tried.append(f"{mapper}: failed ({e})")
+            tried.append(
+                f"{mapper}: failed ({(str(e).strip().splitlines() or [type(e).__name__])[0]})"
+            )
             continue
         result = _largest(models, work / f"model_{mapper}", images, total, mapper)
         if result is None:
             tried.append(f"{mapper}: no model")
             continue
         enough = result.registered >= cfg.min_registered * total
-        pieces = _consistent_pieces(result, progress) if compare else None
+        try:
+            pieces = _consistent_pieces(result, progress) if compare else None
+        except (NeoError, RuntimeError, ValueError) as e:  # a model the check cannot read
+            tried.append(f"{mapper}: its model could not be checked ({e})")
+            continue
         tried.append(_describe(result, pieces))
         largest = max(len(p) for p in pieces) if pieces is not None else 0
         score = (enough, largest, result.registered)
