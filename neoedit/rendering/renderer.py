@@ -16,6 +16,7 @@ from neoedit.fields.background import Background
 from neoedit.fields.radiance import Field
 from neoedit.geometry import OrientedBox
 from neoedit.geometry.rays import ray_aabb
+from neoedit.rendering.coarse import fine_edges
 from neoedit.rendering.intervals import RayIntervals, cut_boxes, near_far_intervals
 from neoedit.rendering.march import march_render
 from neoedit.rendering.occupancy import OccupancyGrid
@@ -95,56 +96,25 @@ def sample_rays(
        Empty bins have zero optical depth.
     2. Fine: ``n_samples`` bins by PDF resampling of those weights on the same domain.
 
+    With a grid both stages are :func:`neoedit.rendering.coarse.fine_edges` (compiled on CPU).
+
     ``intervals`` replaces the valid domain (scene box, near plane, ``boxes`` cut out).
     """
     if intervals is not None and boxes:
         raise ValueError("give removal boxes or the intervals to sample, not both")
     if intervals is None:
         intervals = ray_intervals(field, rays, cfg.near_m, boxes)
-    total = intervals.total
-    n = len(rays)
-    device = total.device
-    if grid is None:
-        edges = uniform_edges(total, cfg.n_coarse_samples, jitter, generator)
-        coarse = RaySamples.from_edges(rays, intervals, edges)
-        with torch.no_grad():
-            sigma = field.density(coarse.points.reshape(-1, 3)).reshape(coarse.t_mid.shape)
-        weights = render_weights(sigma, coarse.deltas)
-    else:
-        k, m = cfg.n_march_samples, min(cfg.n_coarse_samples, cfg.n_march_samples)
-        step = total / k
-        offset = (
-            torch.rand(n, 1, device=device, generator=generator)
-            if jitter
-            else torch.full((n, 1), 0.5, device=device)
-        )
-        arange = torch.arange(k, device=device)
-        s_mid = (arange[None, :] + offset) * step[:, None]  # (N, K)
-        edges = torch.cat(
-            [
-                torch.zeros_like(total)[:, None],
-                (arange[None, 1:] + offset - 0.5) * step[:, None],
-                total[:, None],
-            ],
-            -1,
-        )
-        t_mid = intervals.domain_to_t(s_mid)
-        pts = rays.origins[:, None, :] + t_mid[..., None] * rays.directions[:, None, :]
-        occupied = grid.is_occupied(pts.reshape(-1, 3)).reshape(n, k) & (step[:, None] > 0)
-        # Query m of the c occupied candidates, spread evenly over them (all when c <= m), and
-        # give every occupied bin the density of the queried candidate that represents it.
-        cum = torch.cumsum(occupied.long(), -1)  # (N, K)
-        count = cum[:, -1:].float().clamp_min(m)  # max(c, m)
-        rank_sel = torch.floor(torch.arange(m, device=device)[None, :] * count / m).long()  # (N, m)
-        chosen = rank_sel < cum[:, -1:]
-        idx = torch.searchsorted(cum, rank_sel + 1).clamp_max(k - 1)
-        sel_pts = torch.gather(pts, 1, idx[..., None].expand(n, m, 3))[chosen]
-        sigma_sel = torch.zeros(n, m, device=device)
-        with torch.no_grad():
-            sigma_sel[chosen] = field.density(sel_pts)
-        owner = torch.floor((cum - 1).clamp_min(0).float() * m / count).long().clamp_max(m - 1)
-        sigma = torch.gather(sigma_sel, 1, owner) * occupied
-        weights = render_weights(sigma, (edges[:, 1:] - edges[:, :-1]))
+    if grid is not None:
+        fine = fine_edges(
+            field, grid, rays, intervals, cfg.n_march_samples, cfg.n_coarse_samples,
+            cfg.n_samples, jitter, generator,
+        )  # fmt: skip
+        return RaySamples.from_edges(rays, intervals, fine)
+    edges = uniform_edges(intervals.total, cfg.n_coarse_samples, jitter, generator)
+    coarse = RaySamples.from_edges(rays, intervals, edges)
+    with torch.no_grad():
+        sigma = field.density(coarse.points.reshape(-1, 3)).reshape(coarse.t_mid.shape)
+    weights = render_weights(sigma, coarse.deltas)
     fine = pdf_edges(edges, weights, cfg.n_samples, jitter, generator)
     return RaySamples.from_edges(rays, intervals, fine)
 

@@ -25,28 +25,46 @@ def uniform_edges(
     return u * total[:, None]
 
 
+PDF_EPS = 1e-5
+"""The uniform floor added to every bin's weight before inverse-CDF sampling."""
+
+
+def pdf_positions(
+    n: int,
+    n_bins: int,
+    jitter: bool,
+    device: torch.device | str = "cpu",
+    generator: torch.Generator | None = None,
+) -> torch.Tensor:
+    """(n, n_bins+1) ascending CDF positions in [0, 1] for :func:`pdf_edges`: evenly spaced,
+    or one uniform draw in each of n_bins+1 strata when ``jitter``."""
+    if jitter:
+        u = (
+            torch.arange(n_bins + 1, device=device)
+            + torch.rand(n, n_bins + 1, device=device, generator=generator)
+        ) / (n_bins + 1)
+    else:
+        u = torch.linspace(0.0, 1.0, n_bins + 1, device=device).expand(n, -1)
+    return u.clamp(0.0, 1.0).contiguous()
+
+
 def pdf_edges(
     edges: torch.Tensor,
     weights: torch.Tensor,
     n_bins: int,
-    jitter: bool,
+    jitter: bool = False,
     generator: torch.Generator | None = None,
-    eps: float = 1e-5,
+    eps: float = PDF_EPS,
+    u: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """Draw (N, n_bins+1) new edges by inverse-CDF sampling of piecewise-constant ``weights``
-    (N, M) over bins ``edges`` (N, M+1). A small uniform floor keeps every bin reachable."""
+    (N, M) over bins ``edges`` (N, M+1). A small uniform floor keeps every bin reachable.
+    ``u``: the CDF positions to use (default: :func:`pdf_positions`)."""
     w = weights + eps
     pdf = w / w.sum(-1, keepdim=True)
     cdf = torch.cat([torch.zeros_like(pdf[:, :1]), torch.cumsum(pdf, -1).clamp_max(1.0)], dim=-1)
-    n = edges.shape[0]
-    if jitter:
-        u = (
-            torch.arange(n_bins + 1, device=edges.device)
-            + torch.rand(n, n_bins + 1, device=edges.device, generator=generator)
-        ) / (n_bins + 1)
-    else:
-        u = torch.linspace(0.0, 1.0, n_bins + 1, device=edges.device).expand(n, -1)
-    u = u.clamp(0.0, 1.0).contiguous()
+    if u is None:
+        u = pdf_positions(edges.shape[0], n_bins, jitter, edges.device, generator)
     idx = torch.searchsorted(cdf.contiguous(), u, right=True).clamp(1, cdf.shape[-1] - 1)
     c0, c1 = torch.gather(cdf, -1, idx - 1), torch.gather(cdf, -1, idx)
     e0, e1 = torch.gather(edges, -1, idx - 1), torch.gather(edges, -1, idx)
