@@ -270,8 +270,26 @@ def test_process_maps_incrementally_too_when_the_global_model_breaks(tmp_path, c
         return pieces
 
     monkeypatch.setattr(sfm, "_consistent_pieces", global_breaks)
-    args = ["process", str(tmp_path / "photos"), "--out", str(tmp_path / "ds")]
+    threads: dict[str, list[int]] = {}  # what COLMAP is told: --threads, at every stage
+
+    def recording(name: str):  # noqa: ANN202
+        real = getattr(pycolmap, name)
+
+        def call(*args, **kwargs):  # noqa: ANN002, ANN003, ANN202
+            options = [a for a in (*args, *kwargs.values()) if hasattr(a, "num_threads")]
+            threads[name] = [o.num_threads for o in options]
+            return real(*args, **kwargs)
+
+        monkeypatch.setattr(pycolmap, name, call)
+
+    stages = ("extract_features", "match_exhaustive", "global_mapping", "incremental_mapping")
+    for name in stages:
+        recording(name)
+    args = ["process", str(tmp_path / "photos"), "--out", str(tmp_path / "ds"), "--threads", "1"]
     assert main([*args, "--orient.camera-distance-m", str(cs.TRUE_DISTANCE)]) == 0
+    assert set(threads) == set(stages) and all(
+        threads[s] and set(threads[s]) == {1} for s in stages
+    )
     said = " ".join(capsys.readouterr().out.split())
     assert "global: 20 of 20 photos registered, broken into 2 pieces" in said
     assert "incremental: 20 of 20 photos registered, one consistent piece" in said

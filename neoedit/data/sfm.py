@@ -28,6 +28,7 @@ from neoedit.data.capture import LENS_MODELS
 from neoedit.data.colmap import IMAGE_SUFFIXES, read_colmap
 from neoedit.errors import DataError, NeoError
 from neoedit.utils.progress import make_progress
+from neoedit.utils.threads import thread_budget
 
 VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm", ".MP4", ".MOV")
 MATCHERS = ("auto", "sequential", "exhaustive")
@@ -128,6 +129,7 @@ def run_sfm(images: Path, work: Path, cfg: SfMConfig) -> SfMResult:
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.max_image_size = cfg.max_image_size
     extraction.sift.max_num_features = cfg.max_features
+    extraction.num_threads = thread_budget()
     sequential = is_sequential(cfg, len(names))
     stages: list[tuple[str, Callable[[], object]]] = [
         (
@@ -236,12 +238,14 @@ def _run_mapper(
         task = progress.add_task("mapping (global)", total=1, status="")
         options = pycolmap.GlobalPipelineOptions()
         options.random_seed = cfg.seed
+        options.num_threads = thread_budget()
         models = pycolmap.global_mapping(database, images, out, options)
         progress.advance(task)
         return models
     task = progress.add_task("mapping (incremental)", total=total, status="")
     options = pycolmap.IncrementalPipelineOptions()
     options.random_seed = cfg.seed
+    options.num_threads = thread_budget()
     return pycolmap.incremental_mapping(
         database, images, out, options, next_image_callback=lambda: progress.advance(task)
     )
@@ -264,13 +268,18 @@ def is_sequential(cfg: SfMConfig, photos: int) -> bool:
 def match_pairs(pycolmap, database: Path, photos: int, cfg: SfMConfig) -> None:  # noqa: ANN001
     """Feature matches between the photos of ``database``: sequential (neighbours in name
     order) or exhaustive, as ``cfg.matcher`` says ('auto': sequential beyond 40 photos)."""
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.num_threads = thread_budget()
     if is_sequential(cfg, photos):
         pairing = pycolmap.SequentialPairingOptions()
         pairing.overlap = cfg.overlap
         pairing.loop_detection = False  # needs a vocabulary tree (a download)
-        pycolmap.match_sequential(database, pairing_options=pairing, device=pycolmap.Device.cpu)
+        pairing.num_threads = thread_budget()
+        pycolmap.match_sequential(
+            database, matching, pairing_options=pairing, device=pycolmap.Device.cpu
+        )
     else:
-        pycolmap.match_exhaustive(database, device=pycolmap.Device.cpu)
+        pycolmap.match_exhaustive(database, matching, device=pycolmap.Device.cpu)
 
 
 def _largest(models: dict, folder: Path, images: Path, total: int, mapper: str) -> SfMResult | None:

@@ -101,6 +101,12 @@ def configure_threads(requested: int | None = None) -> int:
     return n
 
 
+def thread_budget() -> int:
+    """The budget :func:`configure_threads` set in this process, else what it would set:
+    the thread count other native libraries (COLMAP) are given."""
+    return _BUDGET[0] if _BUDGET else resolve_threads(None)
+
+
 def chosen_threads(environ: MutableMapping[str, str] = os.environ) -> int | None:
     """The thread count the user chose (``--threads`` of this process, else
     ``$NEO_THREADS``), or None when neither was given: what a process handing work to
