@@ -36,8 +36,8 @@ def _march(origins, dirs, starts, ends, n_bins, occupied, lo, hi, t_out, count):
                 ux = (origins[i, 0] + t * dirs[i, 0] - lo[0]) / (hi[0] - lo[0])
                 uy = (origins[i, 1] + t * dirs[i, 1] - lo[1]) / (hi[1] - lo[1])
                 uz = (origins[i, 2] + t * dirs[i, 2] - lo[2]) / (hi[2] - lo[2])
-                if ux < 0.0 or uy < 0.0 or uz < 0.0 or ux >= 1.0 or uy >= 1.0 or uz >= 1.0:
-                    continue
+                if not (0.0 <= ux < 1.0 and 0.0 <= uy < 1.0 and 0.0 <= uz < 1.0):
+                    continue  # outside the grid (or NaN)
                 ix, iy, iz = (
                     min(int(ux * r), r - 1),
                     min(int(uy * r), r - 1),
@@ -73,9 +73,10 @@ def _coarse_march(
 ):  # pragma: no cover
     """The training sampler's march: bins at ``(b + offset) * step`` over the valid domain,
     each bin's occupancy written to ``occ`` and the ray distances of the occupied ones to
-    ``t_occ``, front first (float32 arithmetic, as the PyTorch reference)."""
+    ``t_occ``, front first (float32 positions, as the PyTorch reference computes them)."""
     n, n_int = starts.shape
     r = occupied.shape[0]
+    rf = np.float32(r)
     zero = np.float32(0.0)
     for i in numba.prange(n):
         total = zero
@@ -97,12 +98,12 @@ def _coarse_march(
                 ux = (origins[i, 0] + t * dirs[i, 0] - lo[0]) / (hi[0] - lo[0])
                 uy = (origins[i, 1] + t * dirs[i, 1] - lo[1]) / (hi[1] - lo[1])
                 uz = (origins[i, 2] + t * dirs[i, 2] - lo[2]) / (hi[2] - lo[2])
-                if ux < zero or uy < zero or uz < zero or ux >= 1.0 or uy >= 1.0 or uz >= 1.0:
-                    continue
+                if not (zero <= ux < 1.0 and zero <= uy < 1.0 and zero <= uz < 1.0):
+                    continue  # outside the grid (or NaN)
                 ix, iy, iz = (
-                    min(int(ux * r), r - 1),
-                    min(int(uy * r), r - 1),
-                    min(int(uz * r), r - 1),
+                    min(int(ux * rf), r - 1),
+                    min(int(uy * rf), r - 1),
+                    min(int(uz * rf), r - 1),
                 )
                 if occupied[ix, iy, iz]:
                     occ[i, b] = 1
@@ -155,11 +156,14 @@ def _fine_edges(
                 seen += 1
                 owner = min(int(np.floor(np.float32(seen - 1) * m / spread)), n_query - 1)
                 tau = sigma[first[i] + owner] * (e[b + 1] - e[b])
-                if tau > zero:
+                if tau != zero:  # (a NaN density too: it spoils the ray, as in the reference)
                     w += np.float32((1.0 - np.exp(-tau)) * np.exp(-tau_sum))
                     tau_sum += tau
             f[b + 1] = w
             w_sum += w
+        if not w_sum == w_sum:  # NaN
+            out[i, :] = np.nan
+            continue
         f[0] = zero
         acc = 0.0
         for b in range(n_bins):

@@ -12,7 +12,8 @@ to the edges of the bins the field is trained on.
 (numba, ``_march_numba``) does steps 1 and 3 without building (rays x bins) tensors: the
 PyTorch version spends more time in ~60 small ops than in the density queries themselves
 (measured: 30 of 40 ms per training batch of 1024 rays on one thread). Both take the same
-random numbers from ``generator`` in the same order and are tested to agree.
+random numbers from ``generator`` in the same order and agree up to float32 rounding
+(tested).
 """
 
 from __future__ import annotations
@@ -47,6 +48,8 @@ def fine_edges(
     cpu = rays.origins.device.type == "cpu"
     if backend == "numba" and not (cpu and numba_available()):
         raise ValueError("the compiled sampler needs CPU tensors and numba")
+    if n_query < 1 or n_march < 1 or n_samples < 1:
+        raise ValueError("the sampler needs at least one bin, query and sample per ray")
     n, device = len(rays), rays.origins.device
     offset = (
         torch.rand(n, 1, device=device, generator=generator)

@@ -11,7 +11,7 @@ needs. Measured on 2 cores, two trainings side by side: 16x slower each with the
 load, so :func:`set_wait_policy` runs on ``import neoedit`` (before torch and numba load).
 
 The knobs a user has: ``--threads N`` on every verb or ``NEO_THREADS=N`` (threads of
-torch and numba; default: the cores this process may use), and ``OMP_WAIT_POLICY`` /
+torch, numba and COLMAP; default: the cores this process may use), and ``OMP_WAIT_POLICY`` /
 ``GOMP_SPINCOUNT`` (kept when set).
 """
 
