@@ -133,7 +133,7 @@ def _fine_edges_numba(
     count = np.zeros(n, dtype=np.int64)
     lo, hi = arr(grid.aabb[0]), arr(grid.aabb[1])
     occupied = grid.occupied.contiguous().numpy()
-    kernels._coarse_march(origins, dirs, starts, ends, off, k, occupied, lo, hi, occ, t_occ, count)
+    kernels._march_bins(origins, dirs, starts, ends, off, k, occupied, lo, hi, occ, t_occ, count)
     n_sel = np.minimum(count, m)
     first = np.concatenate([[0], np.cumsum(n_sel)[:-1]]).astype(np.int64)
     points = np.empty((int(n_sel.sum()), 3), dtype=np.float32)
