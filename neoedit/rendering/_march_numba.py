@@ -46,7 +46,6 @@ def _march_bins(
     ``t_occ``, front first (float32 positions, as the PyTorch reference computes them)."""
     n, n_int = starts.shape
     r = occupied.shape[0]
-    rf = np.float32(r)
     zero = np.float32(0.0)
     for i in numba.prange(n):
         total = zero
@@ -71,9 +70,9 @@ def _march_bins(
                 if not (zero <= ux < 1.0 and zero <= uy < 1.0 and zero <= uz < 1.0):
                     continue  # outside the grid (or NaN)
                 ix, iy, iz = (
-                    min(int(ux * rf), r - 1),
-                    min(int(uy * rf), r - 1),
-                    min(int(uz * rf), r - 1),
+                    min(int(ux * r), r - 1),
+                    min(int(uy * r), r - 1),
+                    min(int(uz * r), r - 1),
                 )
                 if occupied[ix, iy, iz]:
                     occ[i, b] = 1
