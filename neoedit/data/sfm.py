@@ -274,7 +274,6 @@ def match_pairs(pycolmap, database: Path, photos: int, cfg: SfMConfig) -> None: 
         pairing = pycolmap.SequentialPairingOptions()
         pairing.overlap = cfg.overlap
         pairing.loop_detection = False  # needs a vocabulary tree (a download)
-        pairing.num_threads = thread_budget()
         pycolmap.match_sequential(
             database, matching, pairing_options=pairing, device=pycolmap.Device.cpu
         )

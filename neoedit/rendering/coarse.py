@@ -21,9 +21,9 @@ from __future__ import annotations
 import torch
 
 from neoedit.cameras.rays import RayBundle
-from neoedit.fields.hashgrid import numba_available
 from neoedit.fields.radiance import Field
 from neoedit.rendering.intervals import RayIntervals
+from neoedit.rendering.march import float32_numpy, use_compiled
 from neoedit.rendering.occupancy import OccupancyGrid
 from neoedit.rendering.samplers import PDF_EPS, pdf_edges, pdf_positions
 from neoedit.rendering.volume import render_weights
@@ -43,11 +43,7 @@ def fine_edges(
 ) -> torch.Tensor:
     """Domain edges (N, n_samples + 1) of the bins to render, front to back (``backend``:
     'auto' compiles on CPU when numba is there, 'numba' or 'torch')."""
-    if backend not in ("auto", "numba", "torch"):
-        raise ValueError(f"unknown sampler backend {backend!r}")
-    cpu = rays.origins.device.type == "cpu"
-    if backend == "numba" and not (cpu and numba_available()):
-        raise ValueError("the compiled sampler needs CPU tensors and numba")
+    compiled = use_compiled(backend, rays.origins, "sampler")
     if n_query < 1 or n_march < 1 or n_samples < 1:
         raise ValueError("the sampler needs at least one bin, query and sample per ray")
     n, device = len(rays), rays.origins.device
@@ -58,7 +54,7 @@ def fine_edges(
     )
     u = pdf_positions(n, n_samples, jitter, device, generator)
     m = min(n_query, n_march)
-    if backend == "torch" or not cpu or not numba_available():
+    if not compiled:
         return fine_edges_torch(field, grid, rays, intervals, n_march, m, offset, u)
     return _fine_edges_numba(field, grid, rays, intervals, n_march, m, offset, u)
 
@@ -122,9 +118,7 @@ def _fine_edges_numba(
 
     from neoedit.rendering import _march_numba as kernels
 
-    def arr(x: torch.Tensor) -> np.ndarray:
-        return x.detach().float().contiguous().numpy()
-
+    arr = float32_numpy
     origins, dirs = arr(rays.origins), arr(rays.directions)
     starts, ends, off = arr(intervals.starts), arr(intervals.ends), arr(offset[:, 0])
     n = origins.shape[0]

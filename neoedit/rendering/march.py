@@ -54,6 +54,23 @@ def march_occupied_torch(
     return torch.where(keep, t_sorted, torch.zeros_like(t_sorted)), count
 
 
+def use_compiled(backend: str, x: torch.Tensor, what: str) -> bool:
+    """Whether a path with a compiled CPU kernel takes it for tensors like ``x``
+    (``backend``: 'auto' when ``x`` is on the CPU and numba is there, 'numba' (an error
+    otherwise) or 'torch')."""
+    if backend not in ("auto", "numba", "torch"):
+        raise ValueError(f"unknown {what} backend {backend!r}")
+    compiled = x.device.type == "cpu" and numba_available()
+    if backend == "numba" and not compiled:
+        raise ValueError(f"the compiled {what} needs CPU tensors and numba")
+    return compiled and backend != "torch"
+
+
+def float32_numpy(x: torch.Tensor):  # noqa: ANN201
+    """A contiguous float32 NumPy view (or copy) of ``x`` for the compiled kernels."""
+    return x.detach().float().contiguous().numpy()
+
+
 def march_occupied(
     rays: RayBundle,
     intervals: RayIntervals,
@@ -64,18 +81,11 @@ def march_occupied(
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """:func:`march_occupied_torch`, by the compiled kernel for CPU tensors when numba is
     available (``backend``: 'auto', 'numba' or 'torch')."""
-    if backend not in ("auto", "numba", "torch"):
-        raise ValueError(f"unknown march backend {backend!r}")
-    cpu = rays.origins.device.type == "cpu"
-    if backend == "numba" and not (cpu and numba_available()):
-        raise ValueError("the numba march needs CPU tensors and numba")
-    if backend == "torch" or not cpu or not numba_available():
+    if not use_compiled(backend, rays.origins, "march"):
         return march_occupied_torch(rays, intervals, grid, mask, n_bins)
     from neoedit.rendering import _march_numba
 
-    def arr(x: torch.Tensor):
-        return x.detach().float().contiguous().numpy()
-
+    arr = float32_numpy
     t, count = _march_numba.march(
         arr(rays.origins),
         arr(rays.directions),
