@@ -15,6 +15,9 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -c "import torch" 2>/dev/null || $(PY) -m pip install -q torch==2.13.0
 	$(PY) -m pip install -q -e ".[dev,viewer,cluster]"
+	@# compile the CPU kernels into numba's cache now, not in the first training (or in
+	@# every test worker of a fresh checkout)
+	$(PY) -m neoedit.rendering.warmup
 	touch $(STAMP)
 
 # The end-to-end demo on embedded defaults: simulate, train (field + language), render,

@@ -280,3 +280,35 @@ def test_cli_threads_option(sim_root: Path, capsys: pytest.CaptureFixture[str]):
         assert torch.get_num_threads() == 1
     finally:
         configure_threads(before)
+
+
+def test_the_warmup_compiles_what_training_and_renders_call(trained: Path, sim_root: Path):
+    """``make setup``'s warm-up (``python -m neoedit.rendering.warmup``) compiles every
+    kernel for the argument types a training step and both renders pass: afterwards they
+    compile nothing new."""
+    pytest.importorskip("numba")
+    from neoedit.fields import _hashgrid_numba as hash_kernels
+    from neoedit.rendering import _march_numba as march_kernels
+    from neoedit.rendering.renderer import render_rays
+    from neoedit.rendering.warmup import compile_kernels
+
+    assert compile_kernels()
+    kernels = [getattr(hash_kernels, k) for k in ("_forward", "_backward")]
+    kernels += [getattr(march_kernels, k) for k in ("_march_bins", "_coarse_points", "_fine_edges")]
+    compiled = [list(k.signatures) for k in kernels]
+    assert all(len(s) == 1 for s in compiled), compiled
+    scene = load_scene(trained)
+    data = load_scene_data(sim_root / "removal_1" / "pre")
+    cams = CameraTensors(data.cameras, torch.device("cpu"))
+    fast_cfg = scene.meta.render
+    slow_cfg = type(fast_cfg)(**{**vars(fast_cfg), "fast_render": False})
+    for cfg in (fast_cfg, slow_cfg):
+        render_image(scene.field, scene.grid, cams, 0, 8, 8, cfg, scene.background)
+    rays = cams.image_rays(1, data.height, data.width)[:256]
+    gen = torch.Generator().manual_seed(0)
+    out = render_rays(
+        scene.field, scene.grid, rays, slow_cfg, scene.background, jitter=True, generator=gen
+    )
+    out["rgb"].sum().backward()  # the hash table's gradient
+    assert scene.field.encoding.table.grad is not None
+    assert [list(k.signatures) for k in kernels] == compiled
