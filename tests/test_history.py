@@ -379,6 +379,7 @@ def test_batch_move_of_two_objects_moves_both(move_scene: Path, sim_root: Path):
     cfg = MoveConfig(remove=RemoveConfig())
     cfg.remove.refine.steps, cfg.remove.refine.rounds, cfg.remove.views.turns = 30, 1, 1
     cfg.language.steps = 60
+    cfg.distill.field_steps, cfg.distill.render_steps = 10, 10
     child = move(parent, motions, cfg, "red mug; soccer ball")
     rec = child.meta.edits[-1]
     # one patch for both holes, and each object carried under its motion
@@ -406,6 +407,7 @@ def test_a_preview_plan_trains_nothing_and_each_step_sees_the_last(
     assert (
         main(
             ["plan", str(move_scene), str(plan), "--out", str(out), "--preview", *SPARSE_ARGS]
+            + ["--edit.move.language.steps", "40"]
             + ["--json", str(tmp_path / "plan_result.json")]
         )
         == 0
@@ -440,6 +442,7 @@ def test_a_whole_field_student_on_a_patched_version_saves_and_loads(chain: Path,
     cfg = MoveConfig(student="field")
     cfg.remove.refine.steps, cfg.remove.refine.rounds, cfg.remove.views.turns = 30, 1, 1
     cfg.language.steps = 60
+    cfg.distill.field_steps, cfg.distill.render_steps = 10, 10  # saving is under test
     child = move(
         parent,
         [Motion(box, motion_about(np.array(box.center_m), np.array([0.0, 0.06, 0.0]), 0.0))],

@@ -21,6 +21,7 @@ import neoedit as neo
 from neoedit.cameras.rays import CameraTensors
 from neoedit.cli import main
 from neoedit.data import load_scene_data
+from neoedit.edit.distill import DistillConfig
 from neoedit.edit.language_update import (
     LanguageEdit,
     LanguageUpdateConfig,
@@ -128,6 +129,10 @@ FAST = [
     "--edit.remove.refine.steps", "30", "--edit.remove.refine.rounds", "1",
     "--edit.remove.views.turns", "1", "--edit.language.steps", "60",
 ]  # fmt: skip
+SHORT_DISTILL = ["--edit.distill.field-steps", "10", "--edit.distill.render-steps", "20"]
+"""A short distillation where a test checks what a move builds, not how well it distils
+(measured on the tiny scene: the source box still empties ~500x; the default schedule runs
+in tests/test_history.py's chain and in the bench's small run)."""
 SPARSE_ARGS = [
     "--query.min-cluster-points",
     "10",
@@ -164,7 +169,7 @@ def test_move_end_to_end(move_scene: Path, sim_root: Path, tmp_path: Path):
     parent = load_scene(move_scene)
     out = tmp_path / "moved"
     args = ["move", str(move_scene), action["object"], "--transform", str(tmp_path / "t.json")]
-    assert main([*args, "--out", str(out), *FAST, *SPARSE_ARGS]) == 0
+    assert main([*args, "--out", str(out), *FAST, *SHORT_DISTILL, *SPARSE_ARGS]) == 0
     assert tree_digest(move_scene) == before  # the input is untouched, byte for byte
     assert (out / "report" / "before_after.png").is_file()
     moved = load_scene(out)
@@ -282,7 +287,8 @@ def test_moved_version_is_self_contained_and_moves_again(
     (tmp_path / "moved_box.json").write_text(json.dumps(p.meta.moves[0]["target"]))
     again = tmp_path / "again"
     cmd2 = ["move", str(preview), "--box", str(tmp_path / "moved_box.json"), "--translate"]
-    assert main([*cmd2, "-0.05", "0", "0", "--out", str(again), *FAST, "--no-report"]) == 0
+    args2 = ["--out", str(again), *FAST, *SHORT_DISTILL, "--no-report"]
+    assert main([*cmd2, "-0.05", "0", "0", *args2]) == 0
     a = load_scene(again)
     assert isinstance(a.field, PatchedField) and len(a.meta.patches) == 3 and not a.meta.moves
     assert a.meta.parent == p.meta.version_id and "settle_s" in a.meta.edits[-1].timings
@@ -443,7 +449,7 @@ def test_regions_only_distillation_draws_and_compares_only_through_the_boxes(
     """A patch student equals its teacher outside the boxes, so ``regions_only`` draws every
     ray through a box (as many rays as the focus share had) and stage 1 compares samples in
     the boxes only; the patch learns, the rest of the field stays bit-identical."""
-    from neoedit.edit.distill import DistillConfig, RayPool, distill
+    from neoedit.edit.distill import RayPool, distill
     from neoedit.fields.suppressed import SuppressedField
 
     objects = json.loads((sim_root / "removal_1" / "pre" / "objects.json").read_text())
@@ -590,7 +596,11 @@ API_QUERY = neo.QueryConfig(min_cluster_points=10, min_samples=4, eps_m=0.03)  #
 API_REMOVE = neo.RemoveConfig(
     refine=RefineConfig(steps=30, rounds=1), views=VirtualViewConfig(turns=1)
 )
-API_MOVE = neo.MoveConfig(remove=API_REMOVE, language=LanguageUpdateConfig(steps=60))
+API_MOVE = neo.MoveConfig(
+    remove=API_REMOVE,
+    language=LanguageUpdateConfig(steps=60),
+    distill=DistillConfig(field_steps=10, render_steps=10),  # the plumbing is under test
+)
 
 
 def test_the_python_facade_loads_moves_removes_renders_and_saves(move_scene: Path, tmp_path: Path):
