@@ -16,13 +16,12 @@ import pytest
 import torch
 from hypothesis import given
 from hypothesis import strategies as st
-from test_move import FAST, SPARSE_ARGS, _mean_density
+from test_move import FAST, SPARSE_ARGS, _fast_move_config, _mean_density
 
 from neoedit.cameras.rays import CameraTensors
 from neoedit.cli import main
 from neoedit.edit.plan import parse_plan
-from neoedit.edit.relocate import Motion, MoveConfig, move
-from neoedit.edit.remove import RemoveConfig
+from neoedit.edit.relocate import Motion, move
 from neoedit.errors import NeoError
 from neoedit.geometry import OrientedBox, motion_about
 from neoedit.scene import load_scene, save_scene
@@ -376,11 +375,7 @@ def test_batch_move_of_two_objects_moves_both(move_scene: Path, sim_root: Path):
         Motion(b, motion_about(np.array(b.center_m), s, 0.0))
         for b, s in zip(boxes, shift, strict=True)
     ]
-    cfg = MoveConfig(remove=RemoveConfig())
-    cfg.remove.refine.steps, cfg.remove.refine.rounds, cfg.remove.views.turns = 30, 1, 1
-    cfg.language.steps = 60
-    cfg.distill.field_steps, cfg.distill.render_steps = 10, 10
-    child = move(parent, motions, cfg, "red mug; soccer ball")
+    child = move(parent, motions, _fast_move_config(), "red mug; soccer ball")
     rec = child.meta.edits[-1]
     # one patch for both holes, and each object carried under its motion
     assert len(rec.details["source_boxes"]) == 2 and len(child.field.patches) == 3
@@ -439,14 +434,10 @@ def test_a_whole_field_student_on_a_patched_version_saves_and_loads(chain: Path,
     parent = load_scene(chain / "step_1")  # a patched version
     assert isinstance(parent.field.patches, torch.nn.ModuleList) and len(parent.field.patches)
     box = OrientedBox.from_dict(parent.meta.edits[-1].details["target_boxes"][0])
-    cfg = MoveConfig(student="field")
-    cfg.remove.refine.steps, cfg.remove.refine.rounds, cfg.remove.views.turns = 30, 1, 1
-    cfg.language.steps = 60
-    cfg.distill.field_steps, cfg.distill.render_steps = 10, 10  # saving is under test
     child = move(
         parent,
         [Motion(box, motion_about(np.array(box.center_m), np.array([0.0, 0.06, 0.0]), 0.0))],
-        cfg,
+        _fast_move_config(student="field"),
     )
     save_scene(tmp_path / "v", child)
     again = load_scene(tmp_path / "v")

@@ -129,10 +129,11 @@ FAST = [
     "--edit.remove.refine.steps", "30", "--edit.remove.refine.rounds", "1",
     "--edit.remove.views.turns", "1", "--edit.language.steps", "60",
 ]  # fmt: skip
-SHORT_DISTILL = ["--edit.distill.field-steps", "10", "--edit.distill.render-steps", "20"]
-"""A short distillation where a test checks what a move builds, not how well it distils
-(measured on the tiny scene: the source box still empties ~500x; the default schedule runs
-in tests/test_history.py's chain and in the bench's small run)."""
+SHORT_DISTILL = ["--edit.distill.field-steps", "10", "--edit.distill.render-steps", "10"]
+"""A short distillation (as :func:`_fast_move_config`) where a test checks what a move
+builds, not how well it distils (measured on the tiny scene, test_move_end_to_end: the
+source box still 105x emptier than before, 20x asked); the default schedule runs in
+tests/test_history.py's ``chain``, the bench's small run a third of it."""
 SPARSE_ARGS = [
     "--query.min-cluster-points",
     "10",

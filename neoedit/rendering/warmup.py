@@ -2,7 +2,7 @@
 
 numba compiles a kernel the first time a process calls it and keeps the machine code in its
 cache (``__pycache__`` beside the source, or ``NUMBA_CACHE_DIR``); every later process loads
-it from there. The first ``neo train`` after an install would otherwise spend its first
+it from there, until the kernel's source file changes (then the next call compiles again). The first ``neo train`` after an install would otherwise spend its first
 seconds compiling (measured: ~7 s for a training's kernels on the 2-core dev box), and
 every pytest-xdist worker of a fresh checkout would do it again. ``make setup`` runs
 ``python -m neoedit.rendering.warmup``, which calls each kernel once on a few rays through
@@ -44,9 +44,9 @@ def compile_kernels() -> list[str]:
     encoding(torch.rand(64, 3, generator=gen)).sum().backward()
     # the occupancy march of the fast render, and the training sampler's proposal
     n = 32
-    origins = torch.zeros(n, 3) - torch.tensor([0.0, 0.0, 2.0])
-    directions = torch.nn.functional.normalize(torch.rand(n, 3, generator=gen) * 0.2 + 1.0, dim=-1)
-    directions[:, 2] = directions[:, 2].abs()
+    origins = torch.tensor([0.0, 0.0, -2.0]).expand(n, 3).contiguous()
+    aim = torch.rand(n, 3, generator=gen) * 0.4 - 0.2  # points around the ball's centre
+    directions = torch.nn.functional.normalize(aim - origins, dim=-1)
     rays = RayBundle(origins, directions, torch.ones(n))
     intervals = near_far_intervals(torch.full((n,), 1.0), torch.full((n,), 3.0))
     grid = OccupancyGrid(OccupancyGridConfig(resolution=8), torch.tensor([[-1.0] * 3, [1.0] * 3]))
