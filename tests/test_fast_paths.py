@@ -326,3 +326,13 @@ def test_the_warmup_compiles_what_training_and_renders_call(
     assert len(seen) == 5, sorted(seen)
     for name, types in seen.items():
         assert types <= warmed[name], (name, types - warmed[name])
+
+
+def test_the_warmup_without_numba_compiles_nothing(monkeypatch, capsys):
+    """Without numba (the PyTorch paths) the set-up step has nothing to compile and says so."""
+    from neoedit.rendering import warmup
+
+    monkeypatch.setattr(warmup, "numba_available", lambda: False)
+    assert warmup.compile_kernels() == []
+    warmup.main()
+    assert "numba is not installed" in capsys.readouterr().out

@@ -25,10 +25,21 @@ from neoedit.rendering.occupancy import OccupancyGrid, OccupancyGridConfig
 
 
 class _Ball(torch.nn.Module):
-    """A density to sample (the proposal only needs ``density``)."""
+    """A grey ball of density in the box [-1, 1]^3 (a field for the proposal to sample)."""
+
+    aabb: torch.Tensor
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.register_buffer("aabb", torch.tensor([[-1.0] * 3, [1.0] * 3]))
 
     def density(self, pts: torch.Tensor) -> torch.Tensor:
         return 50.0 * torch.exp(-(pts**2).sum(-1) / 0.1)
+
+    def forward(
+        self, points: torch.Tensor, directions: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        return self.density(points), torch.full_like(points, 0.5)
 
 
 def compile_kernels() -> list[str]:
@@ -49,10 +60,11 @@ def compile_kernels() -> list[str]:
     directions = torch.nn.functional.normalize(aim - origins, dim=-1)
     rays = RayBundle(origins, directions, torch.ones(n))
     intervals = near_far_intervals(torch.full((n,), 1.0), torch.full((n,), 3.0))
-    grid = OccupancyGrid(OccupancyGridConfig(resolution=8), torch.tensor([[-1.0] * 3, [1.0] * 3]))
+    ball = _Ball()
+    grid = OccupancyGrid(OccupancyGridConfig(resolution=8), ball.aabb)
     grid.occupied.fill_(True)
     march_occupied(rays, intervals, grid, grid.occupied, 16, backend="numba")
-    fine_edges(_Ball(), grid, rays, intervals, 16, 4, 4, True, gen, backend="numba")
+    fine_edges(ball, grid, rays, intervals, 16, 4, 4, True, gen, backend="numba")
     return ["hash encoding (forward, backward)", "occupancy march", "training proposal"]
 
 
