@@ -162,17 +162,14 @@ def rebuild_grid(
     """Rebuild the whole grid from the field as it is now (the end of training): every cell
     probed at ``coarse_samples`` points, which drops what the running maximum still
     remembers of densities the field has since removed; then every cell occupied (dilated)
-    before or after that pass, but not already found solid by it, probed again at
-    ``fine_samples`` points, so a thin surface the coarse probes missed in its cell is found
-    again. The fast march renders the undilated cells: a surface cell lost here is a hole in
-    every render (issue 39: 4 probes alone cost 0.7 dB held out on a Blender scene). A cell
-    the coarse pass found solid is not probed again (it is marched either way). Measured on
-    a 705-step NEO-Sim pick_place_1 field: 7.9 -> 3.5 s, 0.7 % of the solid cells differ
-    either way (the probes' random positions), held-out PSNR 32.336 -> 32.335 dB."""
+    before or after that pass probed again at ``fine_samples`` points, so a thin surface the
+    coarse probes missed in its cell is found again. The fast march renders the undilated
+    cells: a surface cell lost here is a hole in every render (issue 39: 4 probes alone cost
+    0.7 dB held out on a Blender scene)."""
     before = grid.occupied.clone() if int(grid.n_updates) > 0 else None
     refresh_grid(grid, density_fn, samples=coarse_samples, seed=seed)
     near = grid.occupied if before is None else grid.occupied | before
-    cells = torch.nonzero((near & ~grid.core).reshape(-1))[:, 0]
+    cells = torch.nonzero(near.reshape(-1))[:, 0]
     refresh_grid(grid, density_fn, cells=cells, samples=fine_samples, seed=seed + 1)
 
 
