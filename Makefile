@@ -2,11 +2,12 @@
 VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.neoedit-installed
+KERNELS := $(VENV)/.neoedit-kernels
 DEMO_OUT ?= outputs/demo
 
 .PHONY: setup demo test lint bench bench-small bench-sim bench-field bench-language bench-grasp clean
 
-setup: $(STAMP)
+setup: $(KERNELS)
 
 # Torch first, pinned to the local CPU build when torch is missing (a looser requirement
 # would pull several GB of CUDA packages); then the package with its dev tools.
@@ -15,17 +16,20 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -c "import torch" 2>/dev/null || $(PY) -m pip install -q torch==2.13.0
 	$(PY) -m pip install -q -e ".[dev,viewer,cluster]"
-	@# compile the CPU kernels into numba's cache now, not in the first training (or in
-	@# every test worker of a fresh checkout)
-	$(PY) -m neoedit.rendering.warmup
 	touch $(STAMP)
+
+# The CPU kernels compiled into numba's cache now, not in the first training (or in every
+# test worker of a fresh checkout); again whenever a kernel's source changes.
+$(KERNELS): $(STAMP) neoedit/fields/_hashgrid_numba.py neoedit/rendering/_march_numba.py
+	$(PY) -m neoedit.rendering.warmup
+	touch $(KERNELS)
 
 # The end-to-end demo on embedded defaults: simulate, train (field + language), render,
 # evaluate, find the mug by name, remove it (a new version) and score that against the
 # post-removal scan, move it (preview and full), then run a 3-step plan into a scene store
 # (log, diff, undo), plan grasps of the mug on the store's current version, and regenerate
 # Table I's rows for one small NEO-Sim scene with neo bench.
-demo: $(STAMP)
+demo: $(KERNELS)
 	$(VENV)/bin/neo sim scene examples/demo_scene.yaml --out $(DEMO_OUT)/sim --overwrite
 	rm -rf $(DEMO_OUT)/scene $(DEMO_OUT)/render $(DEMO_OUT)/eval_images $(DEMO_OUT)/query $(DEMO_OUT)/no_mug $(DEMO_OUT)/mug_preview $(DEMO_OUT)/mug_moved $(DEMO_OUT)/moved_render $(DEMO_OUT)/plan $(DEMO_OUT)/plan_diff $(DEMO_OUT)/grasp $(DEMO_OUT)/eval.json $(DEMO_OUT)/query.json $(DEMO_OUT)/no_mug_eval.json $(DEMO_OUT)/mug_moved_query.json $(DEMO_OUT)/no_mug.json
 	$(VENV)/bin/neo train $(DEMO_OUT)/sim/pre --out $(DEMO_OUT)/scene --max-steps 600 --eval-every 200
@@ -55,7 +59,7 @@ demo: $(STAMP)
 	@echo "grasps of the nudged mug:      $(DEMO_OUT)/grasp/grasps.png, $(DEMO_OUT)/grasps.json"
 	@echo "Table I on one scene (neo bench, cached on re-runs): $(DEMO_OUT)/bench/REPORT.md"
 
-test: $(STAMP)
+test: $(KERNELS)
 	@# the browser check of neo view needs a headless Chromium; without one it is skipped with
 	@# a message (make test installs nothing system-wide: .ci/run provides Chromium on CI)
 	@# pytest-xdist: one worker per core (at most 4), one thread each; on 2 cores 8-10 min
@@ -68,13 +72,13 @@ lint: $(STAMP)
 	$(VENV)/bin/mypy
 
 # neo bench: the paper's Tables I-III and the assembly in one command (REPORT.md)
-bench-small: $(STAMP)
+bench-small: $(KERNELS)
 	$(VENV)/bin/neo bench --profile small --out outputs/bench_small
 
-bench: $(STAMP)
+bench: $(KERNELS)
 	$(VENV)/bin/neo bench --profile standard --out outputs/bench_standard
 
-bench-sim: $(STAMP)
+bench-sim: $(KERNELS)
 	$(PY) benchmarks/bench_sim.py --profile standard --out outputs/neosim_standard
 
 bench-field: bench-sim
