@@ -3,6 +3,7 @@ fast renderer with closed forms and with the training sampler; thread options.""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 
@@ -314,7 +315,7 @@ def test_the_warmup_compiles_what_training_and_renders_call(
     data = load_scene_data(sim_root / "removal_1" / "pre")
     cams = CameraTensors(data.cameras, torch.device("cpu"))
     fast_cfg = scene.meta.render
-    slow_cfg = type(fast_cfg)(**{**vars(fast_cfg), "fast_render": False})
+    slow_cfg = dataclasses.replace(fast_cfg, fast_render=False)
     for cfg in (fast_cfg, slow_cfg):
         render_image(scene.field, scene.grid, cams, 0, 8, 8, cfg, scene.background)
     rays = cams.image_rays(1, data.height, data.width)[:256]

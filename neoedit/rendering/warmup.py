@@ -2,9 +2,10 @@
 
 numba compiles a kernel the first time a process calls it and keeps the machine code in its
 cache (``__pycache__`` beside the source, or ``NUMBA_CACHE_DIR``); every later process loads
-it from there, until the kernel's source file changes (then the next call compiles again). The first ``neo train`` after an install would otherwise spend its first
-seconds compiling (measured: ~7 s for a training's kernels on the 2-core dev box), and
-every pytest-xdist worker of a fresh checkout would do it again. ``make setup`` runs
+it from there, until the kernel's source file changes (then the next call compiles again).
+The first ``neo train`` after an install would otherwise spend its first seconds compiling
+(measured: ~7 s for a training's kernels on the 2-core dev box), and every pytest-xdist
+worker of a fresh checkout would do it again. ``make setup`` runs
 ``python -m neoedit.rendering.warmup``, which calls each kernel once on a few rays through
 the same code the training and the renderer use, so the cached signatures are theirs.
 Without numba it does nothing (the PyTorch paths need no compiling).
