@@ -39,6 +39,7 @@ from neoedit.fields.background import Background
 from neoedit.fields.checks import check_finite, check_language, check_weights
 from neoedit.fields.composed import moved_field
 from neoedit.fields.language import LanguageField, LanguageFieldConfig, TextEncoderSpec
+from neoedit.fields.language_map import LanguageMap
 from neoedit.fields.patched import PatchedField
 from neoedit.fields.radiance import Field, RadianceField, RadianceFieldConfig
 from neoedit.fields.stored import field_tensors, load_parts, part_records, prefixed
@@ -76,6 +77,11 @@ class LanguageMeta:
     """Rays per training pixel whose surface points make the query cloud (after its
     subsampling); edits re-render edited boxes at this density. 0: not recorded (scenes
     trained before it was), estimated from the cloud's size."""
+    maps: list[dict[str, Any]] = dataclasses.field(default_factory=list)
+    """The edits made since the weights were trained, oldest first, each a
+    :class:`~neoedit.fields.language_map.LanguageMap` (``sources``, ``targets``: box and
+    transform, ``ring_m``): the field looks points up through them (the default language
+    update; a distilled one bakes them into new weights)."""
 
 
 @dataclass
@@ -251,8 +257,10 @@ def save_scene(
 
 def _sync_patches(scene: Scene) -> None:
     """``meta.patches`` and ``meta.shades`` from the field (parts added since loading belong
-    to this version)."""
+    to this version); ``meta.language.maps`` from the language field."""
     meta = scene.meta
+    if meta.language is not None and scene.language is not None:
+        meta.language.maps = [m.to_dict() for m in scene.language.maps]
     meta.patches, meta.shades = part_records(
         scene.field, meta.patches, meta.shades, meta.version_id
     )
@@ -383,6 +391,12 @@ def _load_language(
             }
         )
         points = tensors["surface_points_m"].clone()  # never the store's cached tensor
+        field_.maps = [
+            LanguageMap.from_dict(m, f"{path / 'scene.json'}: language.maps[{i}]")
+            for i, m in enumerate(meta.maps)
+        ]
+    except NeoError:
+        raise
     except Exception as e:  # corrupt file, missing keys, shape mismatch
         raise NeoError(f"{file}: cannot load the language field: {e}") from None
     scene.language, scene.surface_points_m = field_, points

@@ -13,6 +13,7 @@ import numpy as np
 
 from neoedit.data.validate import check_scan_record
 from neoedit.errors import NeoError
+from neoedit.fields.language_map import LanguageMap
 from neoedit.utils.validate import check_config, finite_number, shorten
 
 
@@ -72,6 +73,8 @@ def check_scene_meta(meta: Any, path: Path) -> None:
                 f"{where}: language.cloud_rays_per_pixel must be a finite number >= 0, "
                 f"got {density}"
             )
+        for i, entry in enumerate(meta.language.maps):
+            LanguageMap.from_dict(entry, f"{where}: language.maps[{i}]")
     check_box_dicts(meta.cut_boxes, f"{where}: cut_boxes")
     check_box_dicts(meta.suppress_boxes, f"{where}: suppress_boxes")
     for i, p in enumerate(meta.patches):

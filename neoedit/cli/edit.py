@@ -17,6 +17,7 @@ from rich.markup import escape
 
 from neoedit.bench.seal3d import Seal3dConfig, SealMove
 from neoedit.edit.history import edit_lock
+from neoedit.edit.language_update import LanguageUpdateConfig
 from neoedit.edit.relocate import MoveConfig, check_move_config, preview_ignored
 from neoedit.edit.remove import RemoveConfig
 from neoedit.errors import NeoError
@@ -53,6 +54,9 @@ class RemoveCommand:
     """(Its options are spelt without ``edit.``; its groups keep their names:
     ``--refine.steps``, ``--shadow.no-enabled``, ``--views.turns``.)"""
     query: QueryConfig = dataclasses.field(default_factory=QueryConfig)
+    language: LanguageUpdateConfig = dataclasses.field(default_factory=LanguageUpdateConfig)
+    """How the language field follows the removal (``--language.method distil``: the
+    paper's distilled update instead of the parent's field read through the edit's map)."""
     json: Path | None = None
     """Also write the result here as JSON (the new version, its parent, the boxes, seconds
     and timings of every stage)."""
@@ -67,12 +71,13 @@ class RemoveCommand:
     def run(self) -> None:
         self.query.check()  # before any loading or training
         self.edit.check()
+        self.language.check("--language")
         from neoedit.edit.pipeline import apply_edit
         from neoedit.edit.remove import Remove
         from neoedit.scene import save_scene
 
         with edit_session(self, (self.scene, self.box, self.masks)) as (scene, boxes):
-            removal = Remove(boxes, self.edit, self.prompt)
+            removal = Remove(boxes, self.edit, self.prompt, language=self.language)
             child = apply_edit(scene, removal)
             save_scene(
                 self.out, child, extras=report_writer(self.report, scene, child, removal.strips)

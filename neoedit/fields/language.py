@@ -1,7 +1,9 @@
 """The language field L(x): its own hash grid + MLP heads -> a unit feature per 3-D point.
 
 Separate from the radiance field, so language training never changes the geometry. An
-optional second head predicts DINO features (LERF's auxiliary target).
+optional second head predicts DINO features (LERF's auxiliary target). A field of an edited
+version carries the maps of the edits made since its weights were trained
+(:mod:`neoedit.fields.language_map`): a point is looked up through them, latest first.
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ import torch
 from torch import nn
 
 from neoedit.fields.hashgrid import HashGridConfig, HashGridEncoding
+from neoedit.fields.language_map import LanguageMap
 
 
 def _default_grid() -> HashGridConfig:
@@ -53,8 +56,13 @@ class LanguageField(nn.Module):
         self.dino_head = (
             _mlp(self.encoding.output_dim, cfg.hidden_dim, cfg.dino_dim) if cfg.dino_dim else None
         )
+        self.maps: list[LanguageMap] = []
+        """The edits since the weights were trained, oldest first (not tensors: scene.json
+        holds them)."""
 
     def _encode(self, points: torch.Tensor) -> torch.Tensor:
+        for edit_map in reversed(self.maps):
+            points = edit_map(points)
         u = ((points - self.aabb[0]) / (self.aabb[1] - self.aabb[0])).clamp(0.0, 1.0)
         return self.encoding(u)
 
