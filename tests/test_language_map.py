@@ -17,6 +17,7 @@ from neoedit.edit.language_update import LanguageEdit, LanguageUpdateConfig, upd
 from neoedit.errors import NeoError
 from neoedit.fields.language_map import LanguageMap, pushed_out_of_footprint
 from neoedit.geometry import OrientedBox, points_in_box
+from neoedit.geometry.box import box_iou_3d
 from neoedit.geometry.transforms import make_transform, rot_z
 from neoedit.scene import load_scene, save_scene
 from neoedit.storage.store import SceneStore
@@ -93,9 +94,8 @@ def test_a_map_is_stored_as_it_looks_points_up_and_bad_entries_are_refused():
         "ring": {**good, "ring_m": float("nan")},
     }  # fmt: skip
     for name, entry in bad_cases.items():
-        with pytest.raises(NeoError, match="language.maps"):
+        with pytest.raises(NeoError, match=r"scene.json: language.maps\[0\]"):
             LanguageMap.from_dict(entry, "scene.json: language.maps[0]")
-        assert name
 
 
 def _drawn_in(box: OrientedBox, gen: torch.Generator, n: int = 500) -> torch.Tensor:
@@ -135,7 +135,9 @@ def test_a_composed_update_answers_what_the_parent_answers_where_the_content_cam
     assert in_target.sum() >= 500
     outside = ~in_target & ~points_in_box(pts, src)
     assert torch.equal(_features(child, pts[outside]), _features(parent, pts[outside]))
-    # a folder and a store version reload with their map
+    # a folder and a store version reload with their map (a store keeps the weights the
+    # version shares with its parent as they were: the same features, bit for bit)
+    expected = _features(child, pts)
     save_scene(tmp_path / "folder", child)
     SceneStore.create(tmp_path / "store")
     save_scene(tmp_path / "store" / "parent", parent)
@@ -143,7 +145,7 @@ def test_a_composed_update_answers_what_the_parent_answers_where_the_content_cam
     for where in ("folder", "store/child"):
         again = load_scene(tmp_path / where)
         assert len(again.language.maps) == 1
-        assert torch.equal(_features(again, pts), _features(child, pts)), where
+        assert torch.equal(_features(again, pts), expected), where
     # a second edit: moved back by the inverse motion, the content is the parent's again
     grandchild = copy.deepcopy(child)
     back = LanguageEdit(source=[tgt], targets=[(src, np.linalg.inv(motion))])
@@ -166,6 +168,39 @@ def test_a_composed_update_answers_what_the_parent_answers_where_the_content_cam
         for name, s in (("distilled", distilled), ("child", child))
     }
     assert len(cloud) > 50 and agree["distilled"] > agree["child"] + 0.1, agree
+    # a Python config with a method that does not exist is refused, not distilled
+    with pytest.raises(NeoError, match="method must be 'compose' or 'distil'"):
+        update_language(child, copy.deepcopy(child), back, LanguageUpdateConfig(method="composed"))  # type: ignore[arg-type]
+
+
+def test_a_distilled_update_after_composed_ones_keeps_what_they_moved(
+    move_scene: Path, sim_root: Path
+):
+    """The distilled copy drops the parent's maps, so it must learn the earlier edits'
+    regions too: after a composed move, a distilled removal somewhere else still says at
+    the moved object's new place what the moved version says there."""
+    action = json.loads((sim_root / "pick_place_1" / "scene.json").read_text())["actions"][0]
+    src = OrientedBox.from_dict(action["source_box"])
+    tgt = OrientedBox.from_dict(action["target_box"])
+    parent = load_scene(move_scene)
+    moved = copy.deepcopy(parent)
+    motion = np.asarray(action["transform_world"], dtype=np.float64)
+    update_language(parent, moved, LanguageEdit(source=[src], targets=[(tgt, motion)]))
+    elsewhere = OrientedBox((-0.15, 0.15, 0.04), (0.06, 0.06, 0.08), 0.0)
+    assert box_iou_3d(elsewhere, src) == 0 and box_iou_3d(elsewhere, tgt) == 0
+    distilled = copy.deepcopy(moved)
+    cfg = LanguageUpdateConfig(method="distil", steps=60)
+    update_language(moved, distilled, LanguageEdit(source=[elsewhere], targets=[]), cfg)
+    # the query points the move changed: in its boxes, where the base weights disagree
+    cloud = distilled.surface_points_m
+    cloud = cloud[points_in_box(cloud, tgt) | points_in_box(cloud, src)]
+    want = _features(moved, cloud)
+    changed = (_features(parent, cloud) * want).sum(-1) < 0.9
+    agree = {
+        name: float((_features(s, cloud[changed]) * want[changed]).sum(-1).mean())
+        for name, s in (("distilled", distilled), ("base weights", parent))
+    }
+    assert changed.sum() > 30 and agree["distilled"] > 0.9, agree
 
 
 def test_a_scene_with_a_malformed_language_map_is_refused(move_scene: Path, tmp_path: Path):

@@ -168,6 +168,9 @@ def test_move_end_to_end(move_scene: Path, sim_root: Path, tmp_path: Path):
     for k, v in parent.field.state_dict().items():
         assert torch.equal(moved.field.base.state_dict()[k], v), k
     assert moved.meta.parent == parent.meta.version_id and moved.meta.edits[-1].type == "move"
+    # the language field: the parent's weights read through the move's map (one per edit)
+    assert len(moved.language.maps) == 1 and parent.language.maps == []
+    assert len(json.loads((out / "scene.json").read_text())["language"]["maps"]) == 1
     # density left the edit's source box and appeared in its target box (the tiny scan's
     # query box is loose, so the edit's own boxes are checked, not the simulator's)
     record = moved.meta.edits[-1]

@@ -45,12 +45,12 @@ from neoedit.utils.timings import Timings
 @dataclass
 class LanguageUpdateConfig:
     method: Literal["compose", "distil"] = "compose"
-    """compose: the new version's language field is its parent's weights read through this
-    edit's map (exact, nothing trained: a removal's update took 0.7 s instead of 6.4 s on
-    NEO-Sim pick_place_1, the query cloud's re-render included). distil: the paper's, a copy of the parent's field trained ``steps`` steps to
-    the composed features at surface points (earlier edits' maps baked into its weights);
-    the settings below but ``rays``, ``density_factor``, ``min_rays``, ``ring_m``,
-    ``margin_m`` and ``min_accumulation`` apply to it alone."""
+    """compose: the new version's language field is its parent's weights read through
+    this edit's map (exact, nothing trained: a removal's update took 0.7 s instead of
+    6.4 s on NEO-Sim pick_place_1, the query cloud's re-render included). distil: the
+    paper's, a copy of the parent's field trained ``steps`` steps to the composed features
+    at surface points, the maps of earlier edits baked into its weights; ``steps``,
+    ``batch``, ``edited_share`` and ``lr`` apply to it alone."""
     rays: int = 24576
     """At most this many scan pixels through the edited boxes are rendered to new surface
     points."""
@@ -178,6 +178,7 @@ def update_language(
     parent is read only. Returns timings (with a distillation, its final loss; empty
     without a language field)."""
     cfg = cfg or LanguageUpdateConfig()
+    cfg.check()  # the Python API's configs too
     if parent.language is None or parent.surface_points_m is None:
         return {}
     timings = Timings()
@@ -190,9 +191,8 @@ def update_language(
             lang = copy.deepcopy(parent.language)
             lang.maps.append(language_map(edit, cfg.ring_m))
         else:
-            lang, timings["language_loss"] = _distilled(
-                parent.language, new_points, kept, edit, cfg
-            )
+            lang, loss = _distilled(parent.language, new_points, kept, edit, cfg)
+            timings["language_loss"] = loss
         child.language = lang.requires_grad_(False)
         child.surface_points_m = torch.cat([kept, new_points])
     timings["new_points"] = len(new_points)
@@ -206,19 +206,26 @@ def _distilled(
     edit: LanguageEdit,
     cfg: LanguageUpdateConfig,
 ) -> tuple[LanguageField, float]:
-    """The paper's update: a copy of ``parent``'s weights (its maps baked in, none kept)
-    trained on the composed features at the edited points ``new_points`` and, to hold the
-    rest, at a sample of the ``kept`` ones; returns it and its final loss."""
-    query = composed_language_query(new_points, edit, cfg.ring_m)
+    """The paper's update: a copy of ``parent``'s weights (no maps kept) trained on the
+    composed features at the edited points ``new_points`` and, to hold the rest, at a
+    sample of the ``kept`` ones; returns it and its final loss. Kept points inside the
+    boxes of the parent's own maps (earlier edits composed, not in its weights) count as
+    edited: the copy learns them too."""
+    earlier = [b.grown(cfg.margin_m) for m in parent.maps for b in m.boxes()]
+    redo = (
+        points_in_boxes(kept, earlier) if earlier else kept.new_zeros(len(kept), dtype=torch.bool)
+    )
+    query = torch.cat([composed_language_query(new_points, edit, cfg.ring_m), kept[redo]])
+    edited, kept = torch.cat([new_points, kept[redo]]), kept[~redo]
     gen = torch.Generator().manual_seed(cfg.seed)
-    n_hold = min(len(kept), max(len(new_points), 4 * cfg.batch))
+    n_hold = min(len(kept), max(len(edited), 4 * cfg.batch))
     hold = kept[torch.randperm(len(kept), generator=gen)[:n_hold].to(kept.device)]
-    points = torch.cat([new_points, hold])
+    points = torch.cat([edited, hold])
     targets, dino = _teacher_targets(parent, torch.cat([query, hold]))
     # batches: edited_share from the edited points, the rest from the held ones
     weights = torch.cat(
         [
-            torch.full((len(new_points),), cfg.edited_share / max(len(new_points), 1)),
+            torch.full((len(edited),), cfg.edited_share / max(len(edited), 1)),
             torch.full((len(hold),), (1 - cfg.edited_share) / max(len(hold), 1)),
         ]
     )

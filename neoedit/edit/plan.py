@@ -322,7 +322,8 @@ def action_edit(
         raise NeoError(f"{action.label}: a batch's edit is made by step_edit")
     if action.type == "remove":
         rcfg = cfg.remove if not cfg.preview else dataclasses.replace(cfg.remove, inpaint=False)
-        return Remove(boxes, rcfg, action.prompt, inpainter)
+        # the language field follows a plan's removals as its moves (--edit.move.language)
+        return Remove(boxes, rcfg, action.prompt, inpainter, language=cfg.move.language)
     motions = _motions(action, boxes)
     if cfg.preview:
         return PreviewMove(motions, cfg.move, action.prompt)

@@ -135,6 +135,7 @@ class Remove:
             "removal": cfg.removal,
             "inpaint": inpaint if cfg.inpaint else None,
             "config": dataclasses.asdict(cfg),
+            "language": dataclasses.asdict(self.language or LanguageUpdateConfig()),
         }
         # a suppression that trains nothing is the DFF-style baseline, not NEO's removal
         method = "suppress" if cfg.removal == "suppress" and not cfg.inpaint else None

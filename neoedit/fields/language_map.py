@@ -42,12 +42,12 @@ def pushed_out_of_footprint(points: torch.Tensor, box: OrientedBox, ring_m: floa
     return local @ rot.T + centre
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class LanguageMap:
     """One edit's map from the edited scene's points to the parent's: ``sources`` were
     emptied; each of ``targets`` is a box that shows its content moved by a rigid 4x4
     world ``transform``. Target boxes take precedence over source boxes where they overlap
-    (the object set down where it stood)."""
+    (the object set down where it stood). Compared by identity (compare ``to_dict()``s)."""
 
     sources: tuple[OrientedBox, ...]
     targets: tuple[tuple[OrientedBox, np.ndarray], ...]
@@ -83,6 +83,10 @@ class LanguageMap:
                 t = points.new_tensor(np.asarray(transform, dtype=np.float64))
                 query[sel] = (points[sel] - t[:3, 3]) @ t[:3, :3]
         return query
+
+    def boxes(self) -> list[OrientedBox]:
+        """Every box the map moves points out of (its sources and targets)."""
+        return [*self.sources, *(b for b, _ in self.targets)]
 
     def to_dict(self) -> dict[str, Any]:
         return {
