@@ -94,8 +94,9 @@ def test_a_map_is_stored_as_it_looks_points_up_and_bad_entries_are_refused():
         "ring": {**good, "ring_m": float("nan")},
     }  # fmt: skip
     for name, entry in bad_cases.items():
-        with pytest.raises(NeoError, match=r"scene.json: language.maps\[0\]"):
+        with pytest.raises(NeoError, match=r"scene.json: language.maps\[0\]") as refused:
             LanguageMap.from_dict(entry, "scene.json: language.maps[0]")
+        assert "Traceback" not in str(refused.value), name  # one line, no Python internals
 
 
 def _drawn_in(box: OrientedBox, gen: torch.Generator, n: int = 500) -> torch.Tensor:
