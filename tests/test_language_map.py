@@ -130,11 +130,12 @@ def test_a_composed_update_answers_what_the_parent_answers_where_the_content_cam
     gen = torch.Generator().manual_seed(1)
     around = (torch.rand(3000, 3, generator=gen) - 0.5) * 0.5 + torch.tensor([0.0, 0.0, 0.1])
     pts = torch.cat([around, _drawn_in(src, gen), _drawn_in(tgt, gen)])
-    edit_map = LanguageMap.of([src], [(tgt, motion)], LanguageUpdateConfig().ring_m)
+    cfg = LanguageUpdateConfig()
+    edit_map = LanguageMap.of([src.grown(cfg.margin_m)], [(tgt, motion)], cfg.ring_m)
     assert torch.allclose(_features(child, pts), _features(parent, edit_map(pts)), atol=1e-6)
     in_target = points_in_box(pts, tgt)
     assert in_target.sum() >= 500
-    outside = ~in_target & ~points_in_box(pts, src)
+    outside = ~in_target & ~points_in_box(pts, src.grown(cfg.margin_m))
     assert torch.equal(_features(child, pts[outside]), _features(parent, pts[outside]))
     # a folder and a store version reload with their map (a store keeps the weights the
     # version shares with its parent as they were: the same features, bit for bit)

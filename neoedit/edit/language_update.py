@@ -98,17 +98,21 @@ class LanguageEdit:
     targets: list[tuple[OrientedBox, np.ndarray]]
 
 
-def language_map(edit: LanguageEdit, ring_m: float) -> LanguageMap:
-    """The map from the edited scene's points to the parent's for ``edit``."""
-    return LanguageMap.of(edit.source, edit.targets, ring_m)
+def language_map(edit: LanguageEdit, cfg: LanguageUpdateConfig) -> LanguageMap:
+    """The map from the edited scene's points to the parent's for ``edit``: its source
+    boxes grown by ``cfg.margin_m``, as where the query cloud is re-rendered (so the support
+    right under a removed object, below its box's floor, reads as the support around it,
+    not as the object's contact), its target boxes as they are."""
+    sources = [b.grown(cfg.margin_m) for b in edit.source]
+    return LanguageMap.of(sources, edit.targets, cfg.ring_m)
 
 
 def composed_language_query(
-    points: torch.Tensor, edit: LanguageEdit, ring_m: float
+    points: torch.Tensor, edit: LanguageEdit, cfg: LanguageUpdateConfig
 ) -> torch.Tensor:
     """Where the parent's language field is asked for the features at edited points (N,3):
     the region rules above, targets over sources."""
-    return language_map(edit, ring_m)(points)
+    return language_map(edit, cfg)(points)
 
 
 @torch.no_grad()
@@ -189,7 +193,7 @@ def update_language(
         kept = old[~points_in_boxes(old, boxes)]
         if cfg.method == "compose":
             lang = copy.deepcopy(parent.language)
-            lang.maps.append(language_map(edit, cfg.ring_m))
+            lang.maps.append(language_map(edit, cfg))
         else:
             lang, loss = _distilled(parent.language, new_points, kept, edit, cfg)
             timings["language_loss"] = loss
@@ -215,7 +219,7 @@ def _distilled(
     redo = (
         points_in_boxes(kept, earlier) if earlier else kept.new_zeros(len(kept), dtype=torch.bool)
     )
-    query = torch.cat([composed_language_query(new_points, edit, cfg.ring_m), kept[redo]])
+    query = torch.cat([composed_language_query(new_points, edit, cfg), kept[redo]])
     edited, kept = torch.cat([new_points, kept[redo]]), kept[~redo]
     gen = torch.Generator().manual_seed(cfg.seed)
     n_hold = min(len(kept), max(len(edited), 4 * cfg.batch))
