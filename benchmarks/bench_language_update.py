@@ -3,8 +3,9 @@ edit's map) against the paper's distilled one, on a trained scene with a languag
 
     python benchmarks/bench_language_update.py --scene S --object "red mug" --other "soccer ball" --out O
 
-Per method: a preview move of the object (``--translate``, ``--yaw``; nothing trained but
-the language update, so its seconds are the update's), the object found by name on the moved
+Per method: a preview move of the object (``--translate``, ``--yaw``; nothing trained:
+``preview_s`` is the name's lookup and the language update, ``preview_language_s`` the
+update alone), the object found by name on the moved
 version (3-D IoU with the edit's target box, centre error), another object found where it
 was, then a removal of the moved object (its language update's seconds) and what its name
 finds afterwards. Run alone: the seconds are wall time on this machine.
@@ -41,9 +42,10 @@ def _found(scene: neo.EditableScene, name: str) -> OrientedBox | None:
         return None
 
 
-def run_method(s: neo.EditableScene, args: argparse.Namespace, method: str) -> dict:
+def run_method(
+    s: neo.EditableScene, args: argparse.Namespace, method: str, other_before: OrientedBox
+) -> dict:
     lang = LanguageUpdateConfig(method=method)
-    other_before = s.find(args.other)[0]
     t0 = time.perf_counter()
     moved = s.move(args.object, args.translate, args.yaw, MoveConfig(language=lang), preview=True)
     row: dict = {"method": method, "preview_s": round(time.perf_counter() - t0, 2)}
@@ -89,7 +91,11 @@ def main() -> None:
     args = p.parse_args()
     configure_threads(args.threads)
     s = neo.load(args.scene)
-    rows = [run_method(s, args, m) for m in args.methods]
+    found = {name: _found(s, name) for name in (args.object, args.other)}
+    missing = [name for name, box in found.items() if box is None]
+    if missing:  # before any edit: the comparison needs both objects
+        sys.exit(f"error: {args.scene}: no object matched {', '.join(map(repr, missing))}")
+    rows = [run_method(s, args, m, found[args.other]) for m in args.methods]  # type: ignore[arg-type]
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
     result = {
         "command": shlex.join([sys.executable, *sys.argv]),

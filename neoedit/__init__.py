@@ -31,6 +31,7 @@ _EXPORTS = {
     "OrientedBox": "neoedit.geometry",
     "RemoveConfig": "neoedit.edit.remove",
     "MoveConfig": "neoedit.edit.relocate",
+    "LanguageUpdateConfig": "neoedit.edit.language_update",
     "QueryConfig": "neoedit.language.localize",
 }
 

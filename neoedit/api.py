@@ -67,9 +67,10 @@ class EditableScene:
             )
         return boxes, None
 
-    def remove(self, target: Target, cfg=None, query=None) -> EditableScene:
-        """The scene without ``target``, what it hid inpainted (``cfg``: a RemoveConfig)."""
-        return self._apply(self._removal(target, cfg, query))
+    def remove(self, target: Target, cfg=None, query=None, language=None) -> EditableScene:
+        """The scene without ``target``, what it hid inpainted (``cfg``: a RemoveConfig;
+        ``language``: a LanguageUpdateConfig, how the language field follows)."""
+        return self._apply(self._removal(target, cfg, query, language))
 
     def move(
         self,
@@ -100,12 +101,14 @@ class EditableScene:
 
         return EditableScene(apply_edit(self.scene, edit), self.source)
 
-    def _removal(self, target: Target, cfg, query):
+    def _removal(self, target: Target, cfg, query, language=None):
+        from neoedit.edit.language_update import LanguageUpdateConfig
         from neoedit.edit.remove import Remove, RemoveConfig
 
         _check_type(cfg, RemoveConfig, "cfg")
+        _check_type(language, LanguageUpdateConfig, "language")
         boxes, prompt = self._boxes(target, query)
-        return Remove(boxes, cfg or RemoveConfig(), prompt)
+        return Remove(boxes, cfg or RemoveConfig(), prompt, language=language)
 
     def _motion(
         self,

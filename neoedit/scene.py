@@ -78,10 +78,8 @@ class LanguageMeta:
     subsampling); edits re-render edited boxes at this density. 0: not recorded (scenes
     trained before it was), estimated from the cloud's size."""
     maps: list[dict[str, Any]] = dataclasses.field(default_factory=list)
-    """The edits made since the weights were trained, oldest first, each a
-    :class:`~neoedit.fields.language_map.LanguageMap` (``sources``, ``targets``: box and
-    transform, ``ring_m``): the field looks points up through them (the default language
-    update; a distilled one bakes them into new weights)."""
+    """The edits since the weights were trained, oldest first (``LanguageMap.to_dict``): the
+    field looks points up through them (a distilled update bakes them into its weights)."""
 
 
 @dataclass
@@ -395,7 +393,7 @@ def _load_language(
             LanguageMap.from_dict(m, f"{path / 'scene.json'}: language.maps[{i}]")
             for i, m in enumerate(meta.maps)
         ]
-    except NeoError:
+    except NeoError:  # a malformed map (check_scene_meta refuses it earlier)
         raise
     except Exception as e:  # corrupt file, missing keys, shape mismatch
         raise NeoError(f"{file}: cannot load the language field: {e}") from None

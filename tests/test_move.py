@@ -380,19 +380,21 @@ def test_a_scene_with_a_bad_cloud_density_is_refused(move_scene: Path, tmp_path:
         load_scene(bad)
 
 
+@pytest.mark.parametrize("method", ["compose", "distil"])
 def test_removal_updates_language_and_keeps_a_single_patch(
-    move_scene: Path, sim_root: Path, tmp_path: Path
+    move_scene: Path, sim_root: Path, tmp_path: Path, method: str
 ):
     action = _action(sim_root)
     out = tmp_path / "removed"
     args = ["remove", str(move_scene), action["object"], "--out", str(out), *SPARSE_ARGS]
-    args += ["--no-report", "--language.method", "distil", "--language.steps", "60"]
+    args += ["--no-report", "--language.method", method, "--language.steps", "60"]
     assert main([*args, "--refine.steps", "30", "--refine.rounds", "1", "--views.turns", "1"]) == 0
     edited = load_scene(out)
     assert isinstance(edited.field, PatchedField) and len(edited.meta.patches) == 1
-    # the paper's update, asked for: new weights, no map (the default's are checked in
-    # tests/test_language_map.py)
-    assert edited.meta.edits[-1].timings["language_loss"] >= 0 and edited.language.maps == []
+    # the default: the parent's weights and one map; the paper's: new weights, no map
+    assert edited.meta.edits[-1].details["language"]["method"] == method
+    assert len(edited.language.maps) == (1 if method == "compose" else 0)
+    assert ("language_loss" in edited.meta.edits[-1].timings) == (method == "distil")
     text = load_text_encoder(edited.meta.language.text)
     from neoedit.language.localize import NoMatch
 
@@ -605,8 +607,11 @@ def test_the_python_facade_loads_moves_removes_renders_and_saves(move_scene: Pat
     moved = dataclasses.replace(mug, center_m=tuple(np.add(mug.center_m, (0.08, 0.04, 0.0))))
     assert _mean_density(s2.scene, moved) > 2 * _mean_density(s.scene, moved)  # it arrived
     assert (s.scene.meta.version_id, len(s.scene.meta.edits)) == before  # s is unchanged
-    s3 = s2.remove(moved, cfg=API_REMOVE)
+    with pytest.raises(NeoError, match="language takes a neo.LanguageUpdateConfig"):
+        s2.remove(moved, cfg=API_REMOVE, language="distil")  # before any work
+    s3 = s2.remove(moved, cfg=API_REMOVE, language=neo.LanguageUpdateConfig(method="compose"))
     assert _mean_density(s3.scene, moved) < 0.25 * _mean_density(s2.scene, moved)
+    assert len(s3.scene.language.maps) == 2  # the move's and the removal's
     rgb = s3.render(index=1)
     cams = s3.cameras
     assert rgb.dtype == np.uint8 and rgb.shape == (int(cams.height[1]), int(cams.width[1]), 3)

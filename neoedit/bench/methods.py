@@ -140,10 +140,8 @@ def _steps(n: int, scale: float) -> int:
 
 
 def language_config(scale: float = 1.0) -> LanguageUpdateConfig:
-    """How the language field follows every edit: NEO's default (the parent's field read
-    through the edit's map, nothing trained), the steps of the paper's distilled update
-    multiplied by ``scale`` for a run that asks for it (figures recorded before 2026-12-07
-    used the distilled update at every edit)."""
+    """How the language field follows every edit: NEO's default (composed; before 2026-12-07
+    distilled), the paper's distilled update's steps multiplied by ``scale``."""
     cfg = LanguageUpdateConfig()
     cfg.steps = _steps(cfg.steps, scale)
     return cfg

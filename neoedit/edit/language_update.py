@@ -5,9 +5,10 @@ CLIP, DINO). It composes the *parent's* language field region by region, exactly
 radiance field's teacher (:class:`~neoedit.fields.language_map.LanguageMap`):
 
 * inside a target box: the parent's features at T^-1 x (the object moved with its meaning);
-* inside a source box (the object is gone, the support was inpainted): the parent's
-  features at the point pushed horizontally out of the box's footprint, onto the surface
-  that surrounded it (the table); with no motion this is the whole removal update;
+* inside a source box grown by a margin (the object is gone, the support was inpainted,
+  down to the support under its box's floor): the parent's features at the point pushed
+  horizontally out of that footprint, onto the surface that surrounded it (the table);
+  with no motion this is the whole removal update;
 * elsewhere: the parent's own features.
 
 By default (``method="compose"``) the new version's field *is* that composition: the
@@ -71,10 +72,11 @@ class LanguageUpdateConfig:
     features elsewhere)."""
     lr: float = 5e-3
     ring_m: float = 0.02
-    """A point in a source box takes the features of the surface this far outside the box's
-    footprint (the support it stood on)."""
+    """A point in a source box takes the features of the surface this far outside the grown
+    box's footprint (``margin_m + ring_m`` from the box: the support it stood on)."""
     margin_m: float = 0.01
-    """The edited boxes are grown by this much when replacing query points."""
+    """The edited boxes are grown by this much where query points are re-rendered, and the
+    source boxes where the map sends points out of them."""
     min_accumulation: float = 0.5
     seed: int = 0
 
