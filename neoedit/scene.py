@@ -389,12 +389,10 @@ def _load_language(
             }
         )
         points = tensors["surface_points_m"].clone()  # never the store's cached tensor
-        field_.maps = [
-            LanguageMap.from_dict(m, f"{path / 'scene.json'}: language.maps[{i}]")
-            for i, m in enumerate(meta.maps)
-        ]
-    except NeoError:  # a malformed map (check_scene_meta refuses it earlier)
-        raise
     except Exception as e:  # corrupt file, missing keys, shape mismatch
         raise NeoError(f"{file}: cannot load the language field: {e}") from None
+    where = path / "scene.json"  # its maps were checked with the rest of it (scene_checks)
+    field_.maps = [
+        LanguageMap.from_dict(m, f"{where}: language.maps[{i}]") for i, m in enumerate(meta.maps)
+    ]
     scene.language, scene.surface_points_m = field_, points

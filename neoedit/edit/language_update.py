@@ -109,14 +109,6 @@ def language_map(edit: LanguageEdit, cfg: LanguageUpdateConfig) -> LanguageMap:
     return LanguageMap.of(sources, edit.targets, cfg.ring_m)
 
 
-def composed_language_query(
-    points: torch.Tensor, edit: LanguageEdit, cfg: LanguageUpdateConfig
-) -> torch.Tensor:
-    """Where the parent's language field is asked for the features at edited points (N,3):
-    the region rules above, targets over sources."""
-    return language_map(edit, cfg)(points)
-
-
 @torch.no_grad()
 def _teacher_targets(
     parent: LanguageField, query: torch.Tensor
@@ -218,10 +210,8 @@ def _distilled(
     boxes of the parent's own maps (earlier edits composed, not in its weights) count as
     edited: the copy learns them too."""
     earlier = [b.grown(cfg.margin_m) for m in parent.maps for b in m.boxes()]
-    redo = (
-        points_in_boxes(kept, earlier) if earlier else kept.new_zeros(len(kept), dtype=torch.bool)
-    )
-    query = torch.cat([composed_language_query(new_points, edit, cfg), kept[redo]])
+    redo = points_in_boxes(kept, earlier)
+    query = torch.cat([language_map(edit, cfg)(new_points), kept[redo]])
     edited, kept = torch.cat([new_points, kept[redo]]), kept[~redo]
     gen = torch.Generator().manual_seed(cfg.seed)
     n_hold = min(len(kept), max(len(edited), 4 * cfg.batch))
