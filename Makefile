@@ -62,9 +62,10 @@ demo: $(KERNELS)
 test: $(KERNELS)
 	@# the browser check of neo view needs a headless Chromium; without one it is skipped with
 	@# a message (make test installs nothing system-wide: .ci/run provides Chromium on CI)
-	@# pytest-xdist: one worker per core (at most 4), one thread each; on 2 cores 8-10 min
+	@# pytest-xdist: one worker per core (at most 4), one thread each, whole files, the longest
+	@# first (tests/conftest.py: HEAVY_FIRST); on 2 cores 10-13 min
 	@# (expensive session fixtures are built once and shared by the workers: tests/conftest.py)
-	$(PY) -m pytest tests -n auto --maxprocesses 4 --dist loadfile
+	$(PY) -m pytest tests -n auto --maxprocesses 4 --dist loadfile --no-loadscope-reorder
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check neoedit tests benchmarks

@@ -86,6 +86,7 @@ def test_parent_and_data_unchanged_and_child_recorded(removal):
         assert edit.parent == parent.meta.version_id == child.meta.parent
         assert OrientedBox.from_dict(edit.details["boxes"][0]).to_dict() == box.to_dict()
         assert edit.details["edit_boxes"] and edit.seconds > 0
+        assert edit.details["language"]["method"] == "compose"  # how its language followed
         assert child.meta.step == STEPS and child.field is not parent.field
 
 

@@ -102,6 +102,7 @@ class NerfillerRemove:
             "edit_boxes": [b.to_dict() for b in work],
             "inpaint": getattr(inpainter, "name", type(inpainter).__name__),
             "config": dataclasses.asdict(cfg),
+            "language": dataclasses.asdict(self.language or LanguageUpdateConfig()),
         }
         method = "nerfiller" if cfg.depth else "nerfiller-no-depth"
         record = EditRecord("remove", self.prompt, method, details=details)

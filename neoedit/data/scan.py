@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 
 from neoedit.cameras import Cameras
+from neoedit.cameras.pose_correction import corrected_poses
 from neoedit.data.load import load_scene_data
 from neoedit.data.nerfstudio import load_cameras
 from neoedit.errors import NeoError
@@ -34,10 +35,19 @@ def scan_record(cameras: Cameras, file_paths: list[str], split: dict[str, Any]) 
     }
 
 
-def scan_from_record(record: dict[str, Any]) -> ScanCameras:
+def scan_from_record(record: dict[str, Any], corrected: bool = True) -> ScanCameras:
+    """The scan's cameras; with the pose corrections its training learnt applied
+    (``pose_corrections``, :mod:`neoedit.training.camera_opt`) unless ``corrected`` is False
+    (the poses as the dataset gives them)."""
     try:
         cameras = Cameras.from_record(record["cameras"])
         split = {k: np.asarray(v, dtype=np.int64) for k, v in record["split"].items()}
+        fixes = record.get("pose_corrections")
+        if corrected and fixes is not None:
+            fixes = np.asarray(fixes, dtype=np.float64)
+            if fixes.shape != (len(cameras), 6) or not np.isfinite(fixes).all():
+                raise ValueError(f"pose_corrections must be {len(cameras)} finite 6-vectors")
+            cameras.camera_to_world = corrected_poses(cameras.camera_to_world, fixes)
         return cameras, list(record["file_paths"]), split
     except (KeyError, TypeError, ValueError) as e:
         raise NeoError(f"malformed scan cameras in scene.json: {e}") from None

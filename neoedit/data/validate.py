@@ -105,6 +105,17 @@ def check_scan_record(record: Any, where: str) -> None:
         if not np.all(np.isfinite(arrays[0][i])):
             raise DataError(f"{at}: the pose has non-finite values")
         check_rotation(arrays[0][i], at)
+    fixes = record.get("pose_corrections")
+    if fixes is not None:
+        try:
+            fixes = np.asarray(fixes, dtype=np.float64)
+        except (TypeError, ValueError):
+            fixes = None
+        if fixes is None or fixes.shape != (n, 6) or not np.isfinite(fixes).all():
+            raise DataError(
+                f"{where}: 'scan.pose_corrections' must be {n} finite 6-vectors (a rotation "
+                "vector and a translation per camera)"
+            )
     names, split = record.get("file_paths"), record.get("split")
     if not isinstance(names, list) or len(names) != n or not all(isinstance(p, str) for p in names):
         raise DataError(f"{where}: 'scan.file_paths' must be {n} file names")

@@ -83,6 +83,45 @@ def _backward(x, grad_out, resolutions, grad_table):  # pragma: no cover - compi
                     grad_table[level, row, f] += w * grad_out[level, i, f]
 
 
+@numba.njit(parallel=True, fastmath=True, cache=True)
+def _backward_x(x, table, grad_out, resolutions, grad_x):  # pragma: no cover - compiled
+    n_levels, table_size, n_feat = table.shape
+    for i in numba.prange(x.shape[0]):
+        g0 = g1 = g2 = np.float32(0.0)
+        for level in range(n_levels):
+            res = resolutions[level]
+            px, py, pz = x[i, 0] * res, x[i, 1] * res, x[i, 2] * res
+            bx, by, bz = int(px), int(py), int(pz)
+            fx, fy, fz = px - bx, py - by, pz - bz
+            for c in range(8):
+                ox, oy, oz = c & 1, (c >> 1) & 1, (c >> 2) & 1
+                wx, wy, wz = (
+                    (fx if ox else 1.0 - fx),
+                    (fy if oy else 1.0 - fy),
+                    (fz if oz else 1.0 - fz),
+                )
+                row = _row(bx + ox, by + oy, bz + oz, res, table_size)
+                dot = np.float32(0.0)  # the output gradient . this corner's features
+                for f in range(n_feat):
+                    dot += grad_out[level, i, f] * table[level, row, f]
+                dot *= res  # d(frac)/dx
+                g0 += dot * (1.0 if ox else -1.0) * wy * wz
+                g1 += dot * wx * (1.0 if oy else -1.0) * wz
+                g2 += dot * wx * wy * (1.0 if oz else -1.0)
+        grad_x[i, 0], grad_x[i, 1], grad_x[i, 2] = g0, g1, g2
+
+
+def backward_x(
+    x: np.ndarray, table: np.ndarray, grad_out: np.ndarray, resolutions: np.ndarray
+) -> np.ndarray:
+    """Gradient (N, 3) of the loss with respect to the points x (N, 3), from the output
+    gradient laid out level-major (L, N, F): the trilinear weights' derivatives times the
+    corners' features (what a camera's pose correction learns from)."""
+    grad_x = np.empty((x.shape[0], 3), dtype=np.float32)
+    _backward_x(x, table, grad_out, resolutions, grad_x)
+    return grad_x
+
+
 def forward(x: np.ndarray, table: np.ndarray, resolutions: np.ndarray) -> np.ndarray:
     """Features (N, L, F) of points x (N, 3) clamped to [0, 1); F is at most 4."""
     if table.shape[2] > 4:

@@ -86,9 +86,11 @@ class _NumbaEncode(torch.autograd.Function):
     ) -> torch.Tensor:
         from neoedit.fields import _hashgrid_numba as kernels
 
-        x = x.detach().clamp(0.0, 1.0 - 1e-6).contiguous()
+        raw, x = x, x.detach().clamp(0.0, 1.0 - 1e-6).contiguous()
         out = kernels.forward(x.numpy(), table.detach().contiguous().numpy(), resolutions.numpy())
-        ctx.save_for_backward(x, resolutions)
+        # the points' gradient (only when asked: pose refinement) is zero where they were clamped
+        inside = x == raw.detach() if ctx.needs_input_grad[0] else None
+        ctx.save_for_backward(x, resolutions, table, inside)
         ctx.table_shape = table.shape
         return torch.from_numpy(out).reshape(x.shape[0], -1)
 
@@ -96,15 +98,25 @@ class _NumbaEncode(torch.autograd.Function):
     def backward(ctx, grad_out: torch.Tensor):
         from neoedit.fields import _hashgrid_numba as kernels
 
-        x, resolutions = ctx.saved_tensors
+        x, resolutions, table, inside = ctx.saved_tensors
         n_levels, _, n_feat = ctx.table_shape
         grad_lnf = (
             grad_out.detach().float().reshape(-1, n_levels, n_feat).permute(1, 0, 2).contiguous()
         )
-        grad_table = kernels.backward(
-            x.numpy(), grad_lnf.numpy(), resolutions.numpy(), ctx.table_shape
-        )
-        return None, torch.from_numpy(grad_table), None
+        grad_x = None
+        if ctx.needs_input_grad[0]:
+            table_np = table.detach().contiguous().numpy()
+            point_grad = kernels.backward_x(
+                x.numpy(), table_np, grad_lnf.numpy(), resolutions.numpy()
+            )
+            grad_x = torch.from_numpy(point_grad) * inside
+        grad_table = None
+        if ctx.needs_input_grad[1]:
+            table_grad = kernels.backward(
+                x.numpy(), grad_lnf.numpy(), resolutions.numpy(), ctx.table_shape
+            )
+            grad_table = torch.from_numpy(table_grad)
+        return grad_x, grad_table, None
 
 
 def numba_available() -> bool:

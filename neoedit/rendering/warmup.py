@@ -54,6 +54,8 @@ def compile_kernels() -> list[str]:
         HashGridConfig(n_levels=2, log2_hashmap_size=8, max_resolution=32, backend="numba")
     )
     encoding(torch.rand(64, 3, generator=gen)).sum().backward()
+    # ... and its gradient with respect to the points (pose refinement)
+    encoding(torch.rand(64, 3, generator=gen).requires_grad_(True)).sum().backward()
     # the occupancy march of the fast render, and the training sampler's proposal
     n = 32
     origins = torch.tensor([0.0, 0.0, -2.0]).expand(n, 3).contiguous()
@@ -66,7 +68,11 @@ def compile_kernels() -> list[str]:
     grid.occupied.fill_(True)
     march_occupied(rays, intervals, grid, grid.occupied, 16, backend="numba")
     fine_edges(ball, grid, rays, intervals, 16, 4, 4, True, gen, backend="numba")
-    return ["hash encoding (forward, backward)", "occupancy march", "training proposal"]
+    return [
+        "hash encoding (forward, backward, point gradient)",
+        "occupancy march",
+        "training proposal",
+    ]
 
 
 def main() -> None:

@@ -34,7 +34,7 @@ def check_same_scan(scene: Scene, data: SceneData) -> None:
     cameras; the folder may have moved): anything else would mix two scenes silently."""
     if not scene.meta.scan:
         return
-    cameras, paths, _ = scan_from_record(scene.meta.scan)
+    cameras, paths, _ = scan_from_record(scene.meta.scan, corrected=False)
     means = scene.meta.scan.get("image_means")  # scenes trained before it: cameras only
     same = (
         paths == list(data.file_paths)
