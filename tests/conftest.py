@@ -136,8 +136,9 @@ HEAVY_FIRST = (
     "test_nerfiller.py",
     "test_bad_inputs.py",
     "test_background.py",
+    "test_pose_refinement.py",
 )
-"""The longest test files (measured: 35-235 s each of ~1,150 s on 2 cores), run first. With
+"""The longest test files (measured: 25-235 s each of ~1,150 s on 2 cores), run first. With
 ``--dist loadfile --no-loadscope-reorder`` (make test) pytest-xdist hands whole files to its
 workers in this collection order, so the short files fill the end and both workers finish
 together (xdist's own order, most tests first, left one worker idle for the last ~70 s).

@@ -188,6 +188,7 @@ CASES = [
     C("train-zero-steps", "train {data} --out s --max-steps 0", 2, "--max-steps must be at least 1, got 0"),
     C("train-zero-minutes", "train {data} --out s --max-minutes 0", 2, "--max-minutes"),
     C("train-nan-lr", "train {data} --out s --lr nan", 2, "--lr must be a finite number"),
+    C("train-zero-pose-lr", "train {data} --out s --pose-refinement --pose-lr 0", 2, "--pose-lr must be > 0"),
     C("train-zero-rays", "train {data} --out s --rays-per-batch 0", 2, "--rays-per-batch"),
     C("train-negative-eval-views", "train {data} --out s --eval-views -1", 2, "--eval-views"),
     C("train-zero-hidden", "train {data} --out s --field.hidden-dim 0", 2, "--field.hidden-dim = 0 is out of range"),

@@ -19,7 +19,7 @@ from neoedit.cameras.rays import RayBundle
 from neoedit.errors import NeoError
 from neoedit.fields.hashgrid import HashGridConfig, HashGridEncoding, encode_torch
 from neoedit.training.camera_opt import PoseRefinement
-from tests.test_conventions_train import _write
+from tests.test_conventions_train import _write  # the textured-floor ring capture
 
 
 def test_so3_exp_is_scipys_rotation_at_every_angle():
@@ -180,5 +180,9 @@ def test_training_turns_mis_posed_photos_back(mis_posed, tmp_path: Path):
     again = load_scene(tmp_path / "s")
     assert np.allclose(again.scan_cameras()[0].camera_to_world, cams.camera_to_world)
     more = tiny_train(data_path, tmp_path / "s", steps=310, resume=True, pose_refinement=True)
-    moved = np.abs(np.asarray(more.meta.scan["pose_corrections"]) - fixes).max()
-    assert 0 < moved < 1e-2  # continued from the saved corrections, not from zero
+    learnt = np.asarray(more.meta.scan["pose_corrections"])
+    assert 0 < np.abs(learnt - fixes).max() < 1e-2  # continued from the saved ones, not zero
+    # resumed without the option: the field keeps training at the corrected poses, which stay
+    kept = tiny_train(data_path, tmp_path / "s", steps=320, resume=True)
+    assert kept.meta.step == 320
+    assert np.array_equal(np.asarray(kept.meta.scan["pose_corrections"]), learnt)

@@ -90,7 +90,9 @@ class NerfillerRemove:
     """How the language field follows the removal (None: the defaults, as after NEO's)."""
 
     def prepare(self, parent: Scene) -> Prepared:
-        cfg, data = self.cfg, self.data
+        cfg = self.cfg
+        # the photos where the parent's training put them (pose corrections applied)
+        data = dataclasses.replace(self.data, cameras=parent.scan_cameras()[0])
         _check_parent(parent, data, self.boxes, cfg)
         work = working_boxes(parent, self.boxes, RemoveConfig(margin_m=cfg.margin_m))
         inpainter = self.inpainter
@@ -164,7 +166,9 @@ def _train_config(parent: Scene, data: SceneData, cfg: NerfillerConfig, steps: i
         sparsity = 0.1 if data.scene_aabb_m is None else 0.0
     depth = (tc.depth_loss_weight if tc.depth_loss_weight > 0 else 0.1) if cfg.depth else 0.0
     tc = dataclasses.replace(tc, sparsity_loss_weight=sparsity, depth_loss_weight=depth)
-    return dataclasses.replace(tc, max_steps=steps, max_minutes=None, seed=cfg.seed)
+    return dataclasses.replace(
+        tc, max_steps=steps, max_minutes=None, seed=cfg.seed, pose_refinement=False
+    )
 
 
 def group_windows(masks: list[np.ndarray], margin_px: int) -> list[Window]:

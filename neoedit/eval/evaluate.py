@@ -26,9 +26,15 @@ def render_views(
     scene: Scene, data: SceneData, indices: Sequence[int]
 ) -> list[dict[str, np.ndarray]]:
     """Render the dataset's cameras ``indices`` as the scene version renders them (its
-    render-time removals included) -> rgb (H,W,3) in [0,1], depth_z (H,W) [m], accumulation."""
+    render-time removals included) -> rgb (H,W,3) in [0,1], depth_z (H,W) [m], accumulation.
+    The scene's own scan is rendered at its corrected poses where its training refined them
+    (held-out photos keep theirs)."""
     device = scene.field.aabb.device
-    cams = CameraTensors(data.cameras, device)
+    cameras = data.cameras
+    scan = scene.meta.scan or {}
+    if "pose_corrections" in scan and list(scan.get("file_paths", [])) == list(data.file_paths):
+        cameras = scene.scan_cameras()[0]
+    cams = CameraTensors(cameras, device)
     out = []
     for i in track(list(indices), "render"):
         r = scene.render_image(cams, int(i), data.height, data.width)

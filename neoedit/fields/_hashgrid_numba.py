@@ -2,7 +2,8 @@
 
 Forward runs in parallel over (level, chunk of points) jobs, so each thread streams one
 level's table at a time (cache-friendly). Backward runs in parallel over levels, so threads
-never write the same table rows and the scatter-add needs no atomics. Inputs must already be clamped to
+never write the same table rows and the scatter-add needs no atomics. The gradient with
+respect to the points (pose refinement only) runs in parallel over points. Inputs must already be clamped to
 [0, 1) (the wrapper does it), so truncation equals floor.
 """
 

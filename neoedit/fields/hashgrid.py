@@ -3,7 +3,7 @@
 Two implementations of one function, ``encode(x (N,3) in [0,1], table (L,T,F)) -> (N, L*F)``:
 a compiled CPU kernel (numba, parallel over levels; ``_hashgrid_numba``), used for CPU
 tensors when numba imports, and a pure-PyTorch one used on CUDA or as the fallback.
-Tests prove both give the same values and table gradients.
+Tests prove both give the same values, table gradients and point gradients.
 """
 
 from __future__ import annotations
@@ -90,7 +90,7 @@ class _NumbaEncode(torch.autograd.Function):
         out = kernels.forward(x.numpy(), table.detach().contiguous().numpy(), resolutions.numpy())
         # the points' gradient (only when asked: pose refinement) is zero where they were clamped
         inside = x == raw.detach() if ctx.needs_input_grad[0] else None
-        ctx.save_for_backward(x, resolutions, table, inside)
+        ctx.save_for_backward(x, resolutions, table if ctx.needs_input_grad[0] else None, inside)
         ctx.table_shape = table.shape
         return torch.from_numpy(out).reshape(x.shape[0], -1)
 

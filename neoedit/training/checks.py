@@ -148,7 +148,7 @@ def check_train_options(
         require(is_int(getattr(train, name), 1), f"--{name.replace('_', '-')} must be at least 1")
     for name in ("eval_every", "eval_views", "checkpoint_every", "sparse_depth_rays"):
         require(is_int(getattr(train, name), 0), f"--{name.replace('_', '-')} must be >= 0")
-    for name in ("lr", "lr_final_factor"):
+    for name in ("lr", "lr_final_factor", "pose_lr"):
         value = getattr(train, name)
         require(finite_number(value) and value > 0, f"--{name.replace('_', '-')} must be > 0")
     for name in (

@@ -182,7 +182,7 @@ class Trainer:
             PhotoAppearance(len(train), 1e-3, device) if cfg.photo_appearance else None
         )
         self.poses = None
-        if cfg.pose_refinement:
+        if cfg.pose_refinement:  # the data's cameras are then as the dataset gives them
             fixes = (scene.meta.scan or {}).get("pose_corrections")  # a resumed run's
             start = None if fixes is None else np.asarray(fixes)[train]
             self.poses = PoseRefinement(len(train), cfg.pose_lr, device, start=start)
@@ -464,6 +464,9 @@ def train(
         scene = load_scene(out, dev)
         check_same_scan(scene, data)
         check_resume_options(scene, given_field, render_cfg, grid_cfg)
+        if not cfg.pose_refinement and "pose_corrections" in (scene.meta.scan or {}):
+            # refined before, not now: the field goes on at the poses it was refined to
+            data = dataclasses.replace(data, cameras=scene.scan_cameras()[0])
         scene.meta.train = dataclasses.asdict(cfg)
     else:
         if (Path(out) / "scene.json").exists():
