@@ -86,6 +86,9 @@ def _forward(x, table, resolutions, out, chunk):  # pragma: no cover - compiled
 def _backward(x, grad_out, resolutions, grad_table):  # pragma: no cover - compiled
     n_levels, table_size, n_feat = grad_table.shape
     for level in numba.prange(n_levels):
+        for row in range(table_size):  # zeroed by the thread that scatters into the level
+            for f in range(n_feat):
+                grad_table[level, row, f] = 0.0
         res = resolutions[level]
         fres = np.float32(res)
         for i in range(x.shape[0]):
@@ -195,8 +198,8 @@ def backward(
     """Table gradient (L, T, F) from the output gradient laid out level-major (L, N, F).
 
     The result may be a buffer of an earlier call whose gradient is no longer referenced
-    (:func:`_free_buffer`); it is zeroed here in one sequential pass before the scatter."""
+    (:func:`_free_buffer`); the kernel zeroes each level before its scatter (in parallel,
+    while the level is in cache)."""
     grad_table = _free_buffer(tuple(int(s) for s in table_shape))
-    grad_table.fill(0.0)
     _backward(x, grad_out, resolutions, grad_table)
     return grad_table
