@@ -86,6 +86,9 @@ def test_keys_change_only_with_what_a_unit_depends_on(monkeypatch):
     assert longer["train/removal_1/pre"] != keys["train/removal_1/pre"]
     assert longer["removal_1/neo"] != keys["removal_1/neo"]
     assert unit_keys(plan, "small", 0, {}, train_steps=small.train_steps) == keys
+    # the report's quality bar: no unit runs again
+    monkeypatch.setitem(profiles.BUDGETS, "small", dataclasses.replace(small, min_held_out_psnr=40))
+    assert unit_keys(plan, "small", 0, {}) == keys
     # an evaluation setting: the method units again, the trainings stay cached
     monkeypatch.setitem(profiles.BUDGETS, "small", dataclasses.replace(small, eval_views=2))
     after = unit_keys(plan, "small", 0, {})
@@ -319,6 +322,31 @@ def test_each_removal_row_is_its_methods_own_edit(sim_root: Path, trained: Path)
         assert torch.equal(child.field.density(points), pre.field.density(points))  # no training
 
 
+def test_the_fields_table_marks_a_field_under_the_profiles_bar():
+    from neoedit.bench.report import fields_table
+    from neoedit.bench.units import Unit
+
+    units = [
+        Unit("train/removal_1/pre", "train", "removal_1", {"scan": "pre"}),
+        Unit("train/removal_1/post", "train", "removal_1", {"scan": "post"}),
+        Unit("train/pick_place_1/pre", "train", "pick_place_1", {"scan": "pre"}),
+        Unit("removal_1/neo", "removal", "removal_1", {"method": "neo"}),
+    ]
+    result = {"steps": 1500, "train_seconds": 400.0}
+    records = {
+        "train/removal_1/pre": {"result": {**result, "held_out": {"psnr": 33.2, "ssim": 0.95, "views": 6}}},
+        "train/removal_1/post": {"result": {**result, "held_out": {"psnr": 29.5, "ssim": 0.9, "views": 6}}},
+        "train/pick_place_1/pre": {"result": result},  # cached before fields were evaluated
+        "removal_1/neo": {"result": {}},
+    }  # fmt: skip
+    rows = fields_table(records, units, 31.0)
+    assert rows[2] == "| removal_1 | pre | 1500 | 400.0 | 33.20 | 0.950 | 6 |"
+    assert rows[3] == "| removal_1 | post | 1500 | 400.0 | 29.50 (under the bar) | 0.900 | 6 |"
+    assert rows[4] == "| pick_place_1 | pre | 1500 | 400.0 | — | — | — |"
+    assert len(rows) == 5  # header, rule, the three trainings: no method rows
+    assert "under the bar" not in "".join(fields_table(records, units, None))
+
+
 def test_the_nerfiller_rows_run_the_nerfiller_baseline(sim_root: Path):
     """The rows the small run leaves out (:data:`BENCH_ELSEWHERE`) reach the baseline that
     tests/test_nerfiller.py runs: with and without depth, on the pre scan's images, with
@@ -374,6 +402,15 @@ def test_small_bench_fills_every_table_with_finite_numbers(small_run):
             metrics = [float(c) for c in cells[2 : 2 + 4 * regions + 2]]
             assert all(math.isfinite(v) for v in metrics), (title, cells)
     units = json.loads((cfg.out / "results.json").read_text())["units"]
+    # every trained field states its quality on its own scan's held-out views
+    fields = _table(report, "The trained fields")
+    assert [(c[0], c[1]) for c in fields] == [
+        (s, scan) for s in SCENES for scan in ("pre", "post")
+    ], fields
+    for cells in fields:
+        held = units[f"train/{cells[0]}/{cells[1]}"]["result"]["held_out"]
+        assert held["views"] == 3 and float(cells[4]) == pytest.approx(held["psnr"], abs=0.01)
+        assert held["psnr"] > 20 and 0 < held["ssim"] <= 1, cells  # a field, not noise
     out_psnr = {
         m: units[f"removal_1/{m}"]["result"]["out"]["psnr"]
         for m in SUITE_METHODS

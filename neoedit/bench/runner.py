@@ -57,7 +57,8 @@ class BenchConfig:
     """Join this Ray cluster (e.g. 'auto' or 'ray://host:10001') instead."""
     train_steps: int | None = None
     """Steps of every pre scan and oracle training (default: the profile's: small 200,
-    standard 500); the tables then measure edits of fields trained that far."""
+    standard 1500); the tables then measure edits of fields trained that far (the report
+    gives each field's held-out PSNR)."""
     keep_versions: bool = False
     """Save every edited version (units/<scene>/<method>/scene; the assembly's chain as a
     scene store, units/assembly/<method>/store) for the grasp benchmark, the viewer or

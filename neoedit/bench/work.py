@@ -169,11 +169,17 @@ def _execute(ctx: Context, unit: Unit, folder: Path) -> dict[str, Any]:
 
 
 def _train(ctx: Context, unit: Unit, folder: Path) -> dict[str, Any]:
+    """Train one scan of a scene; the result states the field's quality: its PSNR / SSIM on
+    the scan's own held-out views (the budget's ``eval_views`` of them), so a table built
+    on it measures the edits, not under-training."""
+    from neoedit.data import load_scene_data
+    from neoedit.eval.evaluate import evaluate
     from neoedit.training.trainer import train
 
     budget = ctx.budget
+    scan = ctx.scene_data(unit.scene) / unit.params["scan"]
     scene = train(
-        ctx.scene_data(unit.scene) / unit.params["scan"],
+        scan,
         folder / "scene",
         budget.train_config(ctx.seed),
         budget.radiance,
@@ -182,4 +188,10 @@ def _train(ctx: Context, unit: Unit, folder: Path) -> dict[str, Any]:
         device=ctx.device,
         language=budget.language if unit.params["language"] else None,
     )
-    return {"train_seconds": round(scene.meta.train_seconds, 1), "steps": scene.meta.step}
+    held_out = evaluate(scene, load_scene_data(scan), "test", max_views=budget.eval_views)
+    return {
+        "train_seconds": round(scene.meta.train_seconds, 1),
+        "steps": scene.meta.step,
+        "held_out": {"psnr": held_out["full"]["psnr"], "ssim": held_out["full"]["ssim"],
+                     "views": held_out["n_views"]},
+    }  # fmt: skip

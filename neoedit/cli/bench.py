@@ -23,7 +23,7 @@ class BenchCommand:
     """Run folder (units/, figures/, REPORT.md, results.json); reused by the next run."""
     profile: Literal["small", "standard"] = "small"
     """small: 64x48 scans and a tiny field (minutes on 2 cores); standard: 320x240 scans,
-    neo train defaults with 500 steps (hours on 2 cores)."""
+    neo train's field, 1500 steps (fields of >= 31 dB held out; hours on 2 cores)."""
     scenes: tuple[str, ...] = ()
     """Scenes to run, e.g. removal_1 pick_place_2 assembly (default: all 12)."""
     methods: tuple[str, ...] = ()
@@ -38,7 +38,7 @@ class BenchCommand:
     seed: int = 0
     train_steps: int | None = None
     """Steps of every pre scan and oracle training (default: the profile's, small 200,
-    standard 500; e.g. 1500 for fields near neo train's quality)."""
+    standard 1500: fields near neo train's quality; fewer for a quicker, rougher run)."""
     keep_versions: bool = False
     """Save every edited version in its unit folder (units/SCENE/METHOD/scene; the assembly:
     a scene store) to open with neo view / neo eval or benchmarks/bench_grasp.py."""
