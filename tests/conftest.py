@@ -137,6 +137,7 @@ HEAVY_FIRST = (
     "test_bad_inputs.py",
     "test_background.py",
     "test_pose_refinement.py",
+    "test_align.py",
 )
 """The longest test files (measured: 25-235 s each of ~1,150 s on 2 cores), run first. With
 ``--dist loadfile --no-loadscope-reorder`` (make test) pytest-xdist hands whole files to its

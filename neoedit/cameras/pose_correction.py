@@ -7,6 +7,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from neoedit.cameras.rays import RayBundle
+
 
 def so3_exp(w: torch.Tensor) -> torch.Tensor:
     """Rotation matrices (N,3,3) of rotation vectors w (N,3) [rad] (Rodrigues; exact at 0)."""
@@ -30,3 +32,12 @@ def corrected_poses(camera_to_world: np.ndarray, corrections: np.ndarray) -> np.
     c2w[:, :3, :3] = rot @ c2w[:, :3, :3]
     c2w[:, :3, 3] += corrections[:, 3:]
     return c2w
+
+
+def corrected_rays(rays: RayBundle, corrections: torch.Tensor, camera: torch.Tensor) -> RayBundle:
+    """``rays`` (N) of cameras ``camera`` (N,) as the cameras' ``corrections`` (C,6) cast them:
+    origins shifted by t, directions turned by exp(w) (one rotation a camera, not a ray);
+    differentiable with respect to ``corrections``."""
+    turn = so3_exp(corrections[:, :3])[camera]
+    directions = (turn @ rays.directions[..., None])[..., 0]
+    return RayBundle(rays.origins + corrections[camera, 3:], directions, rays.z_scale)

@@ -166,6 +166,11 @@ class EvalCommand:
     """Box JSON: the 'In' region (object moved in)."""
     images: Path | None = None
     """Write rendered|ground-truth side-by-side images here (a new folder)."""
+    align_poses: bool = False
+    """Fit each evaluated camera's pose to its photo first (the field frozen; 200 steps of
+    2,048 rays; the JSON's 'aligned' says by how much): the fair measure of a field
+    trained with --pose-refinement, whose training photos moved into agreement while the
+    held-out ones kept the dataset's poses."""
     device: str = "auto"
     overwrite: bool = False
     """Replace the --images folder if it holds earlier evaluation images, and an existing
@@ -173,6 +178,7 @@ class EvalCommand:
 
     def run(self) -> None:
         from neoedit.data import load_scene_data
+        from neoedit.eval.align import AlignConfig
         from neoedit.eval.evaluate import evaluate
         from neoedit.geometry.box import load_boxes
         from neoedit.scene import load_scene
@@ -195,7 +201,8 @@ class EvalCommand:
             if self.images
             else contextlib.nullcontext()
         ) as image_dir:
-            result = evaluate(scene, data, self.split, out_boxes, in_boxes, image_dir)
+            align = AlignConfig() if self.align_poses else None
+            result = evaluate(scene, data, self.split, out_boxes, in_boxes, image_dir, align=align)
         if self.json:
             atomic_write_json(self.json, result)
         console.print_json(json.dumps(result))

@@ -9,9 +9,11 @@ from typing import Any
 
 import numpy as np
 
+from neoedit.cameras import Cameras
 from neoedit.cameras.rays import CameraTensors
 from neoedit.data import SceneData
 from neoedit.data.sparse_depth import is_sparse
+from neoedit.eval.align import AlignConfig, align_cameras
 from neoedit.eval.metrics import ObjectColours, depth_rmse_m, psnr, reprojection_error, ssim
 from neoedit.geometry import OrientedBox
 from neoedit.geometry.masks import masks_for_boxes
@@ -22,19 +24,24 @@ from neoedit.utils.progress import track
 METRICS = ("psnr", "ssim", "depth_rmse_m", "e_rep")
 
 
-def render_views(
-    scene: Scene, data: SceneData, indices: Sequence[int]
-) -> list[dict[str, np.ndarray]]:
-    """Render the dataset's cameras ``indices`` as the scene version renders them (its
-    render-time removals included) -> rgb (H,W,3) in [0,1], depth_z (H,W) [m], accumulation.
-    The scene's own scan is rendered at its corrected poses where its training refined them
-    (held-out photos keep theirs)."""
-    device = scene.field.aabb.device
-    cameras = data.cameras
+def eval_cameras(scene: Scene, data: SceneData) -> Cameras:
+    """The cameras ``data``'s photos are compared at: the dataset's, except for the scene's
+    own scan, whose training refined its poses (its corrected poses; held-out photos keep
+    theirs)."""
     scan = scene.meta.scan or {}
     if "pose_corrections" in scan and list(scan.get("file_paths", [])) == list(data.file_paths):
-        cameras = scene.scan_cameras()[0]
-    cams = CameraTensors(cameras, device)
+        return scene.scan_cameras()[0]
+    return data.cameras
+
+
+def render_views(
+    scene: Scene, data: SceneData, indices: Sequence[int], cameras: Cameras | None = None
+) -> list[dict[str, np.ndarray]]:
+    """Render the dataset's cameras ``indices`` (or those of ``cameras``) as the scene
+    version renders them (its render-time removals included) -> rgb (H,W,3) in [0,1],
+    depth_z (H,W) [m], accumulation; by default at :func:`eval_cameras`."""
+    device = scene.field.aabb.device
+    cams = CameraTensors(eval_cameras(scene, data) if cameras is None else cameras, device)
     out = []
     for i in track(list(indices), "render"):
         r = scene.render_image(cams, int(i), data.height, data.width)
@@ -50,11 +57,14 @@ def evaluate(
     in_boxes: Sequence[OrientedBox] = (),
     image_dir: Path | None = None,
     max_views: int | None = None,
+    align: AlignConfig | None = None,
 ) -> dict[str, Any]:
     """Metrics of ``scene`` rendered at the ``split`` cameras of ``data`` (ground truth);
     ``max_views`` evenly chosen of them when given. Depth RMSE needs dense depth (a
     sensor's, NEO-Sim's): structure-from-motion points are no ground truth (NaN). With
-    instance labels, ``objects`` holds each object's mean colour, rendered and true."""
+    instance labels, ``objects`` holds each object's mean colour, rendered and true.
+    ``align``: each evaluated camera is first fitted to its photo (:mod:`neoedit.eval.align`;
+    ``aligned`` then says by how much)."""
     indices = [int(i) for i in data.indices(split)]
     dense_depth = data.depth_m is not None and not is_sparse(data.depth_m)
     if max_views is not None and 0 < max_views < len(indices):
@@ -62,8 +72,17 @@ def evaluate(
         indices = [indices[k] for k in pick]
     if not indices:
         raise ValueError(f"split '{split}' of {data.root} has no frames")
+    cameras, aligned = eval_cameras(scene, data), None
+    if align is not None:
+        cameras, fixes = align_cameras(scene, data, cameras, indices, align)
+        aligned = {
+            "views": len(indices),
+            "median_turn_deg": round(float(np.degrees(np.median(np.linalg.norm(fixes[:, :3], axis=1)))), 4),
+            "median_shift_mm": round(float(1e3 * np.median(np.linalg.norm(fixes[:, 3:], axis=1))), 3),
+            "steps": align.steps,
+        }  # fmt: skip
     t0 = time.perf_counter()
-    renders = render_views(scene, data, indices)
+    renders = render_views(scene, data, indices, cameras)
     seconds_per_view = (time.perf_counter() - t0) / len(indices)
     regions: dict[str, list[np.ndarray | None]] = {"full": [None] * len(indices)}
     if out_boxes:
@@ -98,7 +117,7 @@ def evaluate(
                         pred,
                         renders[k]["depth_z"],
                         renders[nxt]["rgb"].clip(0, 1),
-                        data.cameras,
+                        cameras,
                         i,
                         indices[nxt],
                         mask,
@@ -115,6 +134,8 @@ def evaluate(
     }
     if colours is not None:
         result["objects"] = colours.result()
+    if aligned is not None:
+        result["aligned"] = aligned
     result["n_views"] = len(indices)
     result["split"] = split
     result["render_seconds_per_view"] = round(seconds_per_view, 3)

@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from neoedit.cameras.pose_correction import so3_exp
+from neoedit.cameras.pose_correction import corrected_rays
 from neoedit.cameras.rays import RayBundle
 
 
@@ -46,9 +46,7 @@ class PoseRefinement:
 
     def apply(self, rays: RayBundle, photo: torch.Tensor) -> RayBundle:
         """``rays`` of training photos ``photo`` (N,) as their corrected poses cast them."""
-        turn = so3_exp(self.params[:, :3])[photo]  # one rotation a photo, not a ray
-        directions = (turn @ rays.directions[..., None])[..., 0]
-        return RayBundle(rays.origins + self.params[photo, 3:], directions, rays.z_scale)
+        return corrected_rays(rays, self.params, photo)
 
     @torch.no_grad()
     def apply_fixed(self, rays: RayBundle, photo: torch.Tensor) -> RayBundle:
