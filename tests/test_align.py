@@ -27,6 +27,7 @@ def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
 def test_a_mis_posed_held_out_camera_is_brought_back_to_its_photo(trained: Path, sim_root: Path):
     scene = load_scene(trained)
     weights = copy.deepcopy(scene.field.state_dict())
+    grid = scene.grid.density.clone()
     data = load_scene_data(sim_root / "removal_1" / "pre")
     views = [int(i) for i in data.indices("test")]
     truth = data.cameras.camera_to_world.copy()
@@ -61,9 +62,41 @@ def test_a_mis_posed_held_out_camera_is_brought_back_to_its_photo(trained: Path,
     at_aligned = evaluate(scene, dataclasses.replace(off, cameras=aligned))["full"]["psnr"]
     assert at_aligned > at_wrong + 2.0, (at_wrong, at_aligned)
     assert at_aligned > at_truth - 0.5, (at_truth, at_aligned)
-    # nothing of the scene changed
+    # nothing of the scene changed, and it took no gradient: the field is frozen while the
+    # cameras move, its parameters trainable again after
     after_weights = scene.field.state_dict()
     assert all(torch.equal(weights[k], after_weights[k]) for k in weights)
+    assert torch.equal(scene.grid.density, grid)
+    assert all(p.grad is None and p.requires_grad for p in scene.field.parameters())
+
+
+def test_evaluate_renders_and_measures_at_the_aligned_cameras(trained, sim_root, monkeypatch):
+    """evaluate(align=...) renders where the alignment put the cameras (stubbed here: the
+    true poses), and leaves the edited boxes' pixels out of the fit."""
+    import neoedit.eval.evaluate as evaluate_mod
+    from neoedit.eval.align import AlignConfig
+    from neoedit.geometry import OrientedBox
+
+    scene = load_scene(trained)
+    data = load_scene_data(sim_root / "removal_1" / "pre")
+    views = [int(i) for i in data.indices("test")]
+    wrong = data.cameras.camera_to_world.copy()
+    wrong[views] = corrected_poses(wrong[views], np.tile([0.03, 0.0, 0.0, 0.0, 0.0, 0.0], (3, 1)))
+    off = dataclasses.replace(
+        data, cameras=dataclasses.replace(data.cameras, camera_to_world=wrong)
+    )
+    box = OrientedBox((0.0, 0.0, 0.05), (0.1, 0.1, 0.1), 0.0)
+    seen = {}
+
+    def stub(scene_, data_, cameras, indices, cfg, exclude=()):
+        seen["exclude"], seen["indices"] = list(exclude), list(indices)
+        return data.cameras, np.full((len(indices), 6), 0.01)
+
+    monkeypatch.setattr(evaluate_mod, "align_cameras", stub)
+    result = evaluate(scene, off, out_boxes=[box], align=AlignConfig(steps=7))
+    assert result["full"]["psnr"] == evaluate(scene, data, out_boxes=[box])["full"]["psnr"]
+    assert seen == {"exclude": [box], "indices": views}
+    assert result["aligned"]["views"] == 3 and result["aligned"]["steps"] == 7
 
 
 def test_neo_eval_align_poses_reports_the_alignment(trained: Path, sim_root: Path, tmp_path):

@@ -18,6 +18,7 @@ from neoedit.bench.methods import (
     REMOVAL_ABLATIONS,
     REMOVAL_METHODS,
 )
+from neoedit.bench.profiles import budget_of
 from neoedit.bench.units import Unit, code_version
 from neoedit.bench.work import Context
 from neoedit.data import load_scene_data
@@ -105,6 +106,36 @@ def ablation_table(
     if not any(u.kind == kind and u.params.get("method") in ablations for u in units):
         return ["*(no ablation of this table was in the run)*"]
     return metric_table(records, units, kind, ("neo", *ablations), regions)
+
+
+QUALITY_BAR_DB: dict[str, float] = {"standard": 31.0}
+"""The held-out PSNR a profile's fields reach at its default training budget (standard at
+1500 steps: 33.3 dB measured on removal_1's pre scan); the report marks a field under it.
+The small profile states none: its tiny fields check the plumbing."""
+
+
+def fields_section(ctx: Context, records: dict, units: list[Unit]) -> list[str]:
+    """The report's section on the trained fields: what each was trained for and reached."""
+    bar = QUALITY_BAR_DB.get(ctx.profile)
+    claim = (
+        f"; the bar of the profile's default budget ({budget_of(ctx.profile).train_steps} "
+        f"steps): {bar:.0f} dB."
+        if bar is not None
+        else " (the small profile's fields are tiny: its tables check the plumbing)."
+    )
+    missing = [
+        f"- `{u.id}`: {records[u.id]['result']['held_out_error']}"
+        for u in units
+        if "held_out_error" in records.get(u.id, {}).get("result", {})
+    ]
+    return [
+        "## The trained fields",
+        "",
+        "Every pre scan and oracle (post scan) field, on its own scan's held-out views" + claim,
+        "",
+        *fields_table(records, units, bar),
+        *(["", "Not evaluated:", *missing] if missing else []),
+    ]
 
 
 def fields_table(records: dict, units: list[Unit], bar_db: float | None) -> list[str]:
@@ -227,16 +258,7 @@ def write_report(ctx: Context, units: list[Unit], records: dict, summary: dict[s
             else []
         ),
         "",
-        "## The trained fields",
-        "",
-        "Every pre scan and oracle (post scan) field, on its own scan's held-out views"
-        + (
-            f"; the profile's stated quality: at least {ctx.budget.min_held_out_psnr:.0f} dB."
-            if ctx.budget.min_held_out_psnr is not None
-            else " (the small profile's fields are tiny: its tables check the plumbing)."
-        ),
-        "",
-        *fields_table(records, units, ctx.budget.min_held_out_psnr),
+        *fields_section(ctx, records, units),
         "",
         "## Table I — object removal (mean over the removal scenes)",
         "",

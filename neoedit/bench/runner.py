@@ -28,7 +28,7 @@ from neoedit.bench.units import (
     suite_specs,
     unit_keys,
 )
-from neoedit.bench.work import Context, cached, run_unit
+from neoedit.bench.work import Context, cached, field_quality, run_unit
 from neoedit.errors import NeoError
 from neoedit.sim.run import post_scan_names
 from neoedit.sim.spec import SceneSpec
@@ -43,7 +43,8 @@ class BenchConfig:
     out: Path
     """Run folder: units/ (cached work), figures/, REPORT.md, results.json."""
     profile: Profile = "small"
-    """small: 64x48 scans, tiny field (minutes); standard: 320x240, neo train defaults (hours)."""
+    """small: 64x48 scans, tiny field (minutes); standard: 320x240, neo train's field, 1500
+    steps (hours)."""
     scenes: tuple[str, ...] = ()
     """Scenes to run (default: all 12 of the suite)."""
     methods: tuple[str, ...] = ()
@@ -195,12 +196,25 @@ def run_bench(cfg: BenchConfig) -> dict[str, Any]:
         "seconds": round(time.perf_counter() - t0, 1),
     }
     ordered = {u.id: records[u.id] for u in units if u.id in records}
+    _state_field_quality(ctx, units, ordered)
     write_report(ctx, units, ordered, summary)
     atomic_write_json(cfg.out / "results.json", {"summary": summary, "units": ordered})
     return summary
 
 
 Done = Callable[[dict[str, Any]], None]
+
+
+def _state_field_quality(ctx: Context, units: list[Unit], records: dict[str, dict]) -> None:
+    """Every finished training's held-out PSNR / SSIM into its record (``held_out``; kept
+    beside the training, evaluated once per setting: :func:`field_quality`)."""
+    for u in units:
+        result = records.get(u.id, {}).get("result")
+        if u.kind == "train" and result is not None:
+            try:
+                result["held_out"] = field_quality(ctx, u)
+            except (NeoError, OSError, ValueError) as e:  # a figure missing, not the run
+                result["held_out_error"] = str(e)
 
 
 def _blocked(u: Unit, records: dict[str, dict[str, Any]]) -> str | None:

@@ -53,8 +53,6 @@ EDITING = ("edit/", "eval/", "bench/")
 method units, not the trainings."""
 TRAIN_BUDGET = ("train_steps", "rays_per_batch", "radiance", "render", "grid", "language")
 """The part of a profile's budget that a training depends on."""
-REPORT_ONLY = ("min_held_out_psnr",)
-"""Budget entries that only the report reads (no unit's result depends on them)."""
 
 
 @functools.cache
@@ -84,9 +82,7 @@ def unit_keys(
     hash of its reused suite folder's files (none for simulated scenes: their sim unit's
     key stands for them); ``train_steps``: the profile's training steps replaced."""
     keys: dict[str, str] = {}
-    budget = {
-        k: v for k, v in budget_of(profile, train_steps).to_dict().items() if k not in REPORT_ONLY
-    }
+    budget = budget_of(profile, train_steps).to_dict()
     train_budget = {k: budget[k] for k in TRAIN_BUDGET}
     for u in units:
         scope = u.kind if u.kind in ("sim", "train") else "method"

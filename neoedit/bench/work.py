@@ -9,6 +9,7 @@ plain function of picklable arguments.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import platform
 import shutil
@@ -169,17 +170,11 @@ def _execute(ctx: Context, unit: Unit, folder: Path) -> dict[str, Any]:
 
 
 def _train(ctx: Context, unit: Unit, folder: Path) -> dict[str, Any]:
-    """Train one scan of a scene; the result states the field's quality: its PSNR / SSIM on
-    the scan's own held-out views (the budget's ``eval_views`` of them), so a table built
-    on it measures the edits, not under-training."""
-    from neoedit.data import load_scene_data
-    from neoedit.eval.evaluate import evaluate
     from neoedit.training.trainer import train
 
     budget = ctx.budget
-    scan = ctx.scene_data(unit.scene) / unit.params["scan"]
     scene = train(
-        scan,
+        ctx.scene_data(unit.scene) / unit.params["scan"],
         folder / "scene",
         budget.train_config(ctx.seed),
         budget.radiance,
@@ -188,10 +183,38 @@ def _train(ctx: Context, unit: Unit, folder: Path) -> dict[str, Any]:
         device=ctx.device,
         language=budget.language if unit.params["language"] else None,
     )
-    held_out = evaluate(scene, load_scene_data(scan), "test", max_views=budget.eval_views)
-    return {
-        "train_seconds": round(scene.meta.train_seconds, 1),
-        "steps": scene.meta.step,
-        "held_out": {"psnr": held_out["full"]["psnr"], "ssim": held_out["full"]["ssim"],
-                     "views": held_out["n_views"]},
-    }  # fmt: skip
+    return {"train_seconds": round(scene.meta.train_seconds, 1), "steps": scene.meta.step}
+
+
+def field_quality(ctx: Context, unit: Unit) -> dict[str, Any]:
+    """A trained field's PSNR / SSIM on its own scan's held-out views (the budget's
+    ``eval_views``), so the report can state the quality the tables were built on. Kept
+    beside the training (``held_out.json``) under a key of the evaluation's own inputs (the
+    training's folder, ``eval_views``, the evaluation code): an evaluation setting or a
+    metric fix re-evaluates without retraining, and trainings cached before this existed
+    get their figures."""
+    from neoedit.data import load_scene_data
+    from neoedit.eval.evaluate import evaluate
+    from neoedit.scene import load_scene
+    from neoedit.utils.device import resolve_device
+
+    folder = ctx.unit_dir(unit.id)
+    record = json.loads((folder / UNIT_FILE).read_text())
+    key = hashlib.sha256(
+        json.dumps([record.get("key"), ctx.budget.eval_views, code_version("method")]).encode()
+    ).hexdigest()[:20]
+    path = folder / "held_out.json"
+    if path.is_file():
+        kept = json.loads(path.read_text())
+        if kept.get("key") == key:
+            return kept["held_out"]
+    scan = load_scene_data(ctx.scene_data(unit.scene) / unit.params["scan"])
+    scene = load_scene(folder / "scene", resolve_device(ctx.device))
+    result = evaluate(scene, scan, "test", max_views=ctx.budget.eval_views)
+    held = {
+        "psnr": result["full"]["psnr"],
+        "ssim": result["full"]["ssim"],
+        "views": result["n_views"],
+    }
+    atomic_write_json(path, {"key": key, "held_out": held})
+    return held

@@ -168,9 +168,9 @@ class EvalCommand:
     """Write rendered|ground-truth side-by-side images here (a new folder)."""
     align_poses: bool = False
     """Fit each evaluated camera's pose to its photo first (the field frozen; 200 steps of
-    2,048 rays; the JSON's 'aligned' says by how much): the fair measure of a field
-    trained with --pose-refinement, whose training photos moved into agreement while the
-    held-out ones kept the dataset's poses."""
+    512 pixels a photo; the --out-box / --in-box pixels left out; the JSON's 'aligned' says
+    by how much): the fair measure of a field trained with --pose-refinement, whose
+    training photos moved into agreement while the held-out ones kept the dataset's poses."""
     device: str = "auto"
     overwrite: bool = False
     """Replace the --images folder if it holds earlier evaluation images, and an existing

@@ -13,7 +13,7 @@ from neoedit.cameras import Cameras
 from neoedit.cameras.rays import CameraTensors
 from neoedit.data import SceneData
 from neoedit.data.sparse_depth import is_sparse
-from neoedit.eval.align import AlignConfig, align_cameras
+from neoedit.eval.align import AlignConfig, align_cameras, alignment_summary
 from neoedit.eval.metrics import ObjectColours, depth_rmse_m, psnr, reprojection_error, ssim
 from neoedit.geometry import OrientedBox
 from neoedit.geometry.masks import masks_for_boxes
@@ -74,24 +74,20 @@ def evaluate(
         raise ValueError(f"split '{split}' of {data.root} has no frames")
     cameras, aligned = eval_cameras(scene, data), None
     if align is not None:
-        cameras, fixes = align_cameras(scene, data, cameras, indices, align)
-        aligned = {
-            "views": len(indices),
-            "median_turn_deg": round(float(np.degrees(np.median(np.linalg.norm(fixes[:, :3], axis=1)))), 4),
-            "median_shift_mm": round(float(1e3 * np.median(np.linalg.norm(fixes[:, 3:], axis=1))), 3),
-            "steps": align.steps,
-        }  # fmt: skip
+        edited = [*out_boxes, *in_boxes]
+        cameras, fixes = align_cameras(scene, data, cameras, indices, align, exclude=edited)
+        aligned = alignment_summary(fixes, align)
     t0 = time.perf_counter()
     renders = render_views(scene, data, indices, cameras)
     seconds_per_view = (time.perf_counter() - t0) / len(indices)
     regions: dict[str, list[np.ndarray | None]] = {"full": [None] * len(indices)}
     if out_boxes:
-        regions["out"] = [masks_for_boxes(data.cameras, i, list(out_boxes)) for i in indices]
+        regions["out"] = [masks_for_boxes(cameras, i, list(out_boxes)) for i in indices]
     if in_boxes:
-        regions["in"] = [masks_for_boxes(data.cameras, i, list(in_boxes)) for i in indices]
+        regions["in"] = [masks_for_boxes(cameras, i, list(in_boxes)) for i in indices]
     if out_boxes or in_boxes:  # "rest": outside every edited box
         edited = list(out_boxes) + list(in_boxes)
-        regions["rest"] = [~masks_for_boxes(data.cameras, i, edited) for i in indices]
+        regions["rest"] = [~masks_for_boxes(cameras, i, edited) for i in indices]
     per_region: dict[str, dict[str, list[float]]] = {r: {m: [] for m in METRICS} for r in regions}
     ids = data.instance_ids
     colours = ObjectColours(data.instance_names) if ids is not None else None

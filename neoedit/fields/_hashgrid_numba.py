@@ -120,18 +120,19 @@ def _backward_x(x, table, grad_out, resolutions, grad_x):  # pragma: no cover - 
             fy = py - np.float32(int(py))
             fz = pz - np.float32(int(pz))
             rows = _corners(px, py, pz, res, table_size)[:8]
+            one = np.float32(1.0)
             for c in range(8):
                 ox, oy, oz = c & 1, (c >> 1) & 1, (c >> 2) & 1
-                wx = fx if ox else 1.0 - fx
-                wy = fy if oy else 1.0 - fy
-                wz = fz if oz else 1.0 - fz
+                wx = fx if ox else one - fx
+                wy = fy if oy else one - fy
+                wz = fz if oz else one - fz
                 dot = np.float32(0.0)  # the output gradient . this corner's features
                 for f in range(n_feat):
                     dot += grad_out[level, i, f] * table[level, rows[c], f]
                 dot *= fres  # d(frac)/dx
-                g0 += dot * (1.0 if ox else -1.0) * wy * wz
-                g1 += dot * wx * (1.0 if oy else -1.0) * wz
-                g2 += dot * wx * wy * (1.0 if oz else -1.0)
+                g0 += dot * (one if ox else -one) * wy * wz
+                g1 += dot * wx * (one if oy else -one) * wz
+                g2 += dot * wx * wy * (one if oz else -one)
         grad_x[i, 0], grad_x[i, 1], grad_x[i, 2] = g0, g1, g2
 
 
