@@ -11,7 +11,7 @@ from neoedit.fields.hashgrid import (
 )
 
 
-@pytest.mark.parametrize("features", [1, 2, 4])
+@pytest.mark.parametrize("features", [1, 2, 4, 8])  # the kernels loop over any F
 def test_numba_matches_torch(features):
     # small table: coarse levels are dense, fine levels are hashed
     cfg = HashGridConfig(

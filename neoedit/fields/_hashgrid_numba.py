@@ -148,9 +148,7 @@ def backward_x(
 
 
 def forward(x: np.ndarray, table: np.ndarray, resolutions: np.ndarray) -> np.ndarray:
-    """Features (N, L, F) of points x (N, 3) clamped to [0, 1); F is at most 4."""
-    if table.shape[2] > 4:
-        raise ValueError("the numba hash-grid kernel supports at most 4 features per level")
+    """Features (N, L, F) of points x (N, 3) clamped to [0, 1)."""
     out = np.empty((x.shape[0], table.shape[0], table.shape[2]), dtype=np.float32)
     _forward(x, table, resolutions, out, FORWARD_CHUNK)
     return out

@@ -147,10 +147,7 @@ class HashGridEncoding(nn.Module):
         self.register_buffer(
             "resolutions", torch.tensor(level_resolutions(cfg), dtype=torch.int64), persistent=False
         )
-        fits_kernel = cfg.features_per_level <= 4
-        self._use_numba = fits_kernel and (
-            cfg.backend == "numba" or (cfg.backend == "auto" and numba_available())
-        )
+        self._use_numba = cfg.backend == "numba" or (cfg.backend == "auto" and numba_available())
 
     @property
     def output_dim(self) -> int:
