@@ -27,7 +27,9 @@ def ring(fx: float, distance_m: float = 0.75, n: int = 12) -> SimpleNamespace:
     eyes[:, 2] = distance_m * 0.6  # 0.8^2 + 0.6^2 = 1: every camera distance_m from the centre
     c2w = np.stack([look_at(e, np.zeros(3)) for e in eyes])
     k = np.full(n, fx)
-    cams = Cameras(c2w, k, k, np.full(n, 160.0), np.full(n, 120.0), np.full(n, 320), np.full(n, 240))
+    cams = Cameras(
+        c2w, k, k, np.full(n, 160.0), np.full(n, 120.0), np.full(n, 320), np.full(n, 240)
+    )
     return SimpleNamespace(cameras=cams, alpha=None)  # photos (field_config reads the alpha)
 
 
@@ -51,9 +53,7 @@ def test_training_resolves_only_the_automatic_resolution():
     assert RadianceFieldConfig().hashgrid.max_resolution == 0
     assert auto.hashgrid.max_resolution == 512
     assert level_resolutions(auto.hashgrid)[-1] == 512
-    given = dataclasses.replace(
-        RadianceFieldConfig(), hashgrid=HashGridConfig(max_resolution=2048)
-    )
+    given = dataclasses.replace(RadianceFieldConfig(), hashgrid=HashGridConfig(max_resolution=2048))
     assert field_config(given, data, BOX).hashgrid.max_resolution == 2048  # the user's value
     # an automatic resolution no data resolved (a field built without neo train) is 1024
     assert level_resolutions(HashGridConfig(max_resolution=0)) == level_resolutions(
