@@ -41,12 +41,7 @@ from neoedit.fields.radiance import RadianceFieldConfig
 from neoedit.rendering.occupancy import OccupancyGridConfig
 from neoedit.rendering.renderer import RenderConfig, render_image
 from neoedit.scene import Scene, SceneMeta, load_scene, save_scene
-from neoedit.training.defaults import (
-    field_config,
-    median_camera_distance,
-    scene_box,
-    scene_box_and_source,
-)
+from neoedit.training.defaults import median_camera_distance, scene_box
 from neoedit.training.trainer import TrainConfig, Trainer
 
 MARKS_S = (30, 45, 60, 90, 120)
@@ -67,7 +62,7 @@ def make_trainer(data_dir: Path, out: Path, max_steps: int, max_minutes: float |
         data_path=str(data_dir.resolve()),
         aabb_m=scene_box(data),
         background_rgb=list(data.background_rgb or (1.0, 1.0, 1.0)),
-        field=field_config(RadianceFieldConfig(), data, scene_box_and_source(data)[0]),
+        field=RadianceFieldConfig(),
         grid=OccupancyGridConfig(),
         render=render,
         train=dataclasses.asdict(cfg),

@@ -16,9 +16,6 @@ from torch import nn
 
 PRIMES = (1, 2654435761, 805459861)
 
-DEFAULT_MAX_RESOLUTION = 1024
-"""The finest level's resolution a ``max_resolution`` of 0 stands for where no data chose one."""
-
 
 @dataclass
 class HashGridConfig:
@@ -31,9 +28,7 @@ class HashGridConfig:
     base_resolution: int = 16
     """Grid resolution of the coarsest level."""
     max_resolution: int = 1024
-    """Grid resolution of the finest level (over the scene box). 0: automatic (the radiance
-    field's default: ``neo train`` chooses it from the photos' pixel size,
-    :func:`neoedit.training.defaults.finest_resolution`; 1024 where no data chooses)."""
+    """Grid resolution of the finest level (over the scene box)."""
     backend: str = "auto"
     """'auto' (numba on CPU when available, PyTorch otherwise), 'numba' or 'torch'."""
 
@@ -45,8 +40,9 @@ class HashGridConfig:
 def level_resolutions(cfg: HashGridConfig) -> list[int]:
     if cfg.n_levels == 1:
         return [cfg.base_resolution]
-    finest = cfg.max_resolution or DEFAULT_MAX_RESOLUTION
-    growth = math.exp((math.log(finest) - math.log(cfg.base_resolution)) / (cfg.n_levels - 1))
+    growth = math.exp(
+        (math.log(cfg.max_resolution) - math.log(cfg.base_resolution)) / (cfg.n_levels - 1)
+    )
     return [int(math.floor(cfg.base_resolution * growth**level)) for level in range(cfg.n_levels)]
 
 

@@ -18,15 +18,10 @@ from neoedit.fields.hashgrid import HashGridConfig, HashGridEncoding
 from neoedit.fields.room import RoomConfig, RoomField
 
 
-def _field_hashgrid() -> HashGridConfig:
-    return HashGridConfig(max_resolution=0)  # automatic: chosen from the data at training
-
-
 @dataclass
 class RadianceFieldConfig:
-    hashgrid: HashGridConfig = field(default_factory=_field_hashgrid)
-    """Position encoding. Its finest resolution is automatic by default (0): ``neo train``
-    chooses it from the photos' pixel size (:func:`~neoedit.training.defaults.finest_resolution`)."""
+    hashgrid: HashGridConfig = field(default_factory=HashGridConfig)
+    """Position encoding."""
     hidden_dim: int = 64
     """Width of the density MLP."""
     geo_feat_dim: int = 15

@@ -1,11 +1,10 @@
 """What a training resolves from its data before it starts: the scene box and where it comes
-from, the automatic sparsity weight, and the field config's data-dependent defaults (the hash
-grid's finest resolution, a learned background, the room around the box)."""
+from, the automatic sparsity weight, and the field config's data-dependent defaults (a learned
+background, the room around the box)."""
 
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import numpy as np
 
@@ -13,7 +12,6 @@ from neoedit.cameras.cameras import orbit_center
 from neoedit.data import SceneData
 from neoedit.data.bounds import alpha_hull_box
 from neoedit.errors import NeoError
-from neoedit.fields.hashgrid import DEFAULT_MAX_RESOLUTION
 from neoedit.fields.radiance import RadianceFieldConfig
 
 
@@ -23,40 +21,13 @@ def median_camera_distance(data: SceneData) -> float:
     return float(np.median(np.linalg.norm(data.cameras.camera_to_world[:, :3, 3] - center, axis=1)))
 
 
-MIN_FINEST_RESOLUTION = 256
-"""Lowest finest resolution :func:`finest_resolution` chooses."""
-
-
-def finest_resolution(data: SceneData, box: np.ndarray) -> int:
-    """The hash grid's finest resolution for photos of the scene ``box`` (2,3): the power of
-    two whose cells along the box's longest side are just smaller than a pixel's footprint
-    at the cameras' median distance, between :data:`MIN_FINEST_RESOLUTION` and
-    :data:`~neoedit.fields.hashgrid.DEFAULT_MAX_RESOLUTION` (1024).
-
-    Finer levels than the photos resolve add nothing a photo can check, and their cells
-    share the hash table with the big surfaces': measured on NEO-Sim pick_place_1 (320x240
-    photos, a 1.5 m box: 463 pixel footprints, so 512), 3 minutes of training, held out,
-    1024 -> 512: the red mug's mean colour error 7.6 -> 3.6 /255, the ball's 5.0 -> 2.7, the
-    whole image 33.77 -> 33.76 dB (the mug had taken on the wood grain of the table it
-    shares table entries with; benchmarks/RESULTS.md). A 360-px phone capture of a 1.3 m
-    box (beer_can, 1,485 footprints) keeps 1024."""
-    footprint = median_camera_distance(data) / float(np.median(data.cameras.fx))
-    cells = float(np.max(np.asarray(box)[1] - np.asarray(box)[0])) / max(footprint, 1e-9)
-    finest = 2 ** math.ceil(math.log2(max(cells, 1.0)))
-    return int(min(DEFAULT_MAX_RESOLUTION, max(MIN_FINEST_RESOLUTION, finest)))
-
-
 def field_config(
     cfg: RadianceFieldConfig | None, data: SceneData, box: np.ndarray
 ) -> RadianceFieldConfig:
-    """The field config with its data-dependent defaults resolved: the hash grid's finest
-    resolution (:func:`finest_resolution`), a learned background for
+    """The field config with its data-dependent defaults resolved: a learned background for
     photos (no alpha channel, or an alpha that is opaque everywhere), and a room field
     around the scene ``box`` (2,3) when most cameras look at it from outside."""
     cfg = cfg or RadianceFieldConfig()
-    if cfg.hashgrid.max_resolution == 0:
-        hashgrid = dataclasses.replace(cfg.hashgrid, max_resolution=finest_resolution(data, box))
-        cfg = dataclasses.replace(cfg, hashgrid=hashgrid)
     photos = data.alpha is None or bool((data.alpha == 255).all())
     chosen_background = cfg.learned_background
     if cfg.learned_background is None:

@@ -20,7 +20,7 @@ BOUNDS: dict[str, tuple[float | None, float | None]] = {
     "features_per_level": (1, 8),
     "log2_hashmap_size": (1, 26),
     "base_resolution": (1, 1 << 16),
-    "max_resolution": (0, 1 << 20),  # 0: automatic
+    "max_resolution": (1, 1 << 20),
     "hidden_dim": (1, 4096),
     "geo_feat_dim": (1, 1024),
     "hidden_dim_color": (1, 4096),
@@ -156,7 +156,7 @@ def check_config(cfg: Any, where: str) -> None:
         raise NeoError(
             f"{where}.backend must be auto, numba or torch, got {shorten(cfg.backend)!r}"
         )
-    if hasattr(cfg, "base_resolution") and 0 < cfg.max_resolution < cfg.base_resolution:
+    if hasattr(cfg, "base_resolution") and cfg.max_resolution < cfg.base_resolution:
         raise NeoError(f"{where}.max-resolution must be at least {where}.base-resolution")
 
 
