@@ -395,3 +395,37 @@ def test_sparse_depth_is_sampled_and_shapes_the_geometry(sim_root: Path, tmp_pat
     # (0.92 against 0.53 held out, on the 2-core machine)
     assert opacity["sparse"] > opacity["depth only"] + 0.2, opacity
     assert errors["by chance"] < 0.3 * errors["colour"], errors
+
+
+def test_object_ray_share_draws_the_objects_pixels(sim_root: Path, tmp_path: Path):
+    """--object-ray-share: that share of each batch lies on the dataset's objects, the rest
+    stays uniform; a dataset that does not label its objects is refused before training."""
+    from neoedit.scene import Scene, SceneMeta
+    from neoedit.training.defaults import scene_box
+    from neoedit.training.object_rays import object_instance_ids
+    from neoedit.training.trainer import Trainer
+
+    data = load_scene_data(sim_root / "pick_place_1" / "pre")
+    meta = SceneMeta(
+        data_path="x",
+        aabb_m=scene_box(data),
+        background_rgb=[1.0, 1.0, 1.0],
+        field=TINY_FIELD,
+        grid=TINY_GRID,
+        render=TINY_RENDER,
+    )
+    ids = object_instance_ids(data)
+    assert ids and all(data.instance_names[i] not in ("table", "robot arm") for i in ids)
+    cfg = TrainConfig(rays_per_batch=400, object_ray_share=0.5)
+    trainer = Trainer(data, Scene.create(meta), cfg, tmp_path, torch.device("cpu"))
+    labels = data.instance_ids[data.split["train"]]
+    img, v, u, target, _ = trainer.batch()
+    on_object = np.isin(labels[img.numpy(), v.numpy(), u.numpy()], ids)
+    assert on_object[200:].all()
+    assert on_object[:200].mean() < 0.3  # the uniform part: objects are a small share
+    images = data.images[data.split["train"]]
+    assert np.allclose(target.numpy() * 255, images[img.numpy(), v.numpy(), u.numpy()])
+    assert trainer.step(0) > 0.0
+    data.instance_ids = None
+    with pytest.raises(NeoError, match="object-ray-share"):
+        Trainer(data, Scene.create(meta), cfg, tmp_path, torch.device("cpu"))

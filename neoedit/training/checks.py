@@ -159,6 +159,11 @@ def check_train_options(
     ):
         value = getattr(train, name)
         require(finite_number(value) and value >= 0, f"--{name.replace('_', '-')} must be >= 0")
+    share = train.object_ray_share
+    require(
+        finite_number(share) and 0 <= share < 1,
+        f"--object-ray-share must be in [0, 1), got {share}",
+    )
     for name in ("sparsity_loss_weight", "depth_loss_weight"):
         require(finite_number(getattr(train, name)), f"--{name.replace('_', '-')} must be finite")
     check_config(field, "--field")
