@@ -599,12 +599,17 @@ API_MOVE = neo.MoveConfig(
 )
 
 
+MOVE_AWAY = (0.16, 0.06, 0.0)
+"""The scene's own action (NEO-Sim pick_place_1): the target clear of the mug's first place,
+so the density there measures the arrival alone (8 cm overlapped the mug's handle side)."""
+
+
 def test_the_python_facade_loads_moves_removes_renders_and_saves(move_scene: Path, tmp_path: Path):
     s = neo.load(move_scene)
     before = (s.scene.meta.version_id, len(s.scene.meta.edits))
     (mug,) = s.find("red mug", API_QUERY)
-    s2 = s.move("red mug", translate=(0.08, 0.04, 0.0), cfg=API_MOVE, query=API_QUERY)
-    moved = dataclasses.replace(mug, center_m=tuple(np.add(mug.center_m, (0.08, 0.04, 0.0))))
+    s2 = s.move("red mug", translate=MOVE_AWAY, cfg=API_MOVE, query=API_QUERY)
+    moved = dataclasses.replace(mug, center_m=tuple(np.add(mug.center_m, MOVE_AWAY)))
     assert _mean_density(s2.scene, moved) > 2 * _mean_density(s.scene, moved)  # it arrived
     assert (s.scene.meta.version_id, len(s.scene.meta.edits)) == before  # s is unchanged
     with pytest.raises(NeoError, match="language takes a neo.LanguageUpdateConfig"):

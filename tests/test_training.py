@@ -426,6 +426,19 @@ def test_object_ray_share_draws_the_objects_pixels(sim_root: Path, tmp_path: Pat
     images = data.images[data.split["train"]]
     assert np.allclose(target.numpy() * 255, images[img.numpy(), v.numpy(), u.numpy()])
     assert trainer.step(0) > 0.0
-    data.instance_ids = None
-    with pytest.raises(NeoError, match="object-ray-share"):
+    data.objects = [{"name": "red mug", "box": {}, "id": "mug"}]
+    with pytest.raises(NeoError, match="integer 'id'"):
         Trainer(data, Scene.create(meta), cfg, tmp_path, torch.device("cpu"))
+    data.instance_ids = None
+    with pytest.raises(NeoError, match="object-ray-share .* no instance images"):
+        Trainer(data, Scene.create(meta), cfg, tmp_path, torch.device("cpu"))
+
+
+@pytest.mark.parametrize("share", [1.0, -0.1, float("nan")])
+def test_object_ray_share_out_of_range_is_refused(share: float):
+    from neoedit.training.checks import check_train_options
+
+    with pytest.raises(NeoError, match="--object-ray-share must be in"):
+        check_train_options(
+            TrainConfig(object_ray_share=share), TINY_FIELD, TINY_GRID, TINY_RENDER, None, False
+        )

@@ -167,7 +167,12 @@ def _train_config(parent: Scene, data: SceneData, cfg: NerfillerConfig, steps: i
     depth = (tc.depth_loss_weight if tc.depth_loss_weight > 0 else 0.1) if cfg.depth else 0.0
     tc = dataclasses.replace(tc, sparsity_loss_weight=sparsity, depth_loss_weight=depth)
     return dataclasses.replace(
-        tc, max_steps=steps, max_minutes=None, seed=cfg.seed, pose_refinement=False
+        tc,
+        max_steps=steps,
+        max_minutes=None,
+        seed=cfg.seed,
+        pose_refinement=False,
+        object_ray_share=0.0,  # the inpainted scan's labels still show the removed object
     )
 
 

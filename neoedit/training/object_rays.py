@@ -22,7 +22,16 @@ from neoedit.errors import NeoError
 def object_instance_ids(data: SceneData) -> list[int]:
     """The instance ids of the dataset's objects (``objects.json``'s ``objects``, which
     leaves out the table, the robot and the background)."""
-    return sorted({int(o["id"]) for o in data.objects if "id" in o})
+    ids = set()
+    for entry in data.objects:
+        value = entry.get("id")
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise NeoError(
+                f"{data.root}/objects.json: object {entry.get('name')!r} has no integer 'id' "
+                f"(got {value!r}); --object-ray-share finds an object's pixels by that id"
+            )
+        ids.add(value)
+    return sorted(ids)
 
 
 class ObjectRays:
@@ -30,15 +39,25 @@ class ObjectRays:
     views, and a sampler that mixes them into a batch."""
 
     def __init__(self, data: SceneData, share: float, device: torch.device | str = "cpu"):
-        ids = object_instance_ids(data)
-        if data.instance_ids is None or not ids:
+        missing = (
+            "instance images (nerfstudio frames' instance_path)"
+            if data.instance_ids is None
+            else "objects in objects.json"
+            if not data.objects
+            else None
+        )
+        if missing is not None:
             raise NeoError(
                 f"--object-ray-share {share} needs a dataset that labels its objects "
-                "(instance images and objects.json with their ids, as NEO-Sim writes); "
-                f"{data.root} has none: drop the option"
+                f"(instance images and objects.json with their ids, as NEO-Sim writes); "
+                f"{data.root} has no {missing}: drop the option"
             )
-        labels = data.instance_ids[data.split["train"]]
-        where = np.argwhere(np.isin(labels, ids))
+        ids = object_instance_ids(data)
+        train = data.split["train"]
+        on_object = np.isin(np.asarray(data.instance_ids)[train], ids)
+        if data.loss_mask is not None:  # pixels left out of the loss are not drawn either
+            on_object &= data.loss_mask[train]
+        where = np.argwhere(on_object)
         if len(where) == 0:
             raise NeoError(
                 f"--object-ray-share {share}: no training view of {data.root} shows an object "

@@ -64,7 +64,8 @@ class TrainConfig:
     max_minutes: float | None = None
     """Also stop after this much training time (periodic evaluation excluded)."""
     rays_per_batch: int = 2048
-    """Rays per step, drawn at random from all training pixels."""
+    """Rays per step, drawn at random from all training pixels (a share of them from the
+    objects' pixels with ``object_ray_share``)."""
     lr: float = 2e-2
     """Adam learning rate at the start; decays exponentially to lr * lr_final_factor at
     --max-steps or at --max-minutes, whichever comes first. Measured on NEO-Sim removal_1
@@ -205,7 +206,9 @@ class Trainer:
         """Random training pixels: image index, row, column, target colour (N,3) in [0,1] and
         target z-depth (N,) [m] (0: none; None without depth). With sparse depth,
         ``sparse_depth_rays`` pixels that have one follow the ``rays_per_batch`` random ones
-        (they train the depth only, so the colour loss stays that of random pixels)."""
+        (they train the depth only, so the colour loss stays that of the batch's pixels).
+        With ``object_ray_share``, that share of the ``rays_per_batch`` pixels is drawn from
+        the objects' pixels (:class:`~neoedit.training.object_rays.ObjectRays`)."""
         t, h, w = self.images.shape[:3]
         n = self.cfg.rays_per_batch
         img = torch.randint(0, t, (n,), device=self.device, generator=self.generator)
