@@ -297,14 +297,12 @@ def test_scene_box_without_dataset_box_holds_the_surfaces(sim_root: Path):
     assert np.all((pts >= lo) & (pts <= hi), axis=1).mean() > 0.99
 
 
-def test_loss_mask_excludes_pixels(sim_root: Path, tmp_path: Path):
-    """nerfstudio mask_path: masked-out pixels contribute nothing to the loss."""
-    from neoedit.scene import Scene, SceneMeta
+def _tiny_meta(data):
+    """The tiny field's scene record for ``data`` (an in-memory Trainer's scene)."""
+    from neoedit.scene import SceneMeta
     from neoedit.training.defaults import scene_box
-    from neoedit.training.trainer import Trainer
 
-    data = load_scene_data(sim_root / "removal_1" / "pre")
-    meta = SceneMeta(
+    return SceneMeta(
         data_path="x",
         aabb_m=scene_box(data),
         background_rgb=[1.0, 1.0, 1.0],
@@ -312,6 +310,15 @@ def test_loss_mask_excludes_pixels(sim_root: Path, tmp_path: Path):
         grid=TINY_GRID,
         render=TINY_RENDER,
     )
+
+
+def test_loss_mask_excludes_pixels(sim_root: Path, tmp_path: Path):
+    """nerfstudio mask_path: masked-out pixels contribute nothing to the loss."""
+    from neoedit.scene import Scene
+    from neoedit.training.trainer import Trainer
+
+    data = load_scene_data(sim_root / "removal_1" / "pre")
+    meta = _tiny_meta(data)
     cfg = TrainConfig(rays_per_batch=256, distortion_loss_weight=0.0)
     data.loss_mask = np.zeros(data.images.shape[:3], bool)
     assert Trainer(data, Scene.create(meta), cfg, tmp_path, torch.device("cpu")).step(0) == 0.0
@@ -324,22 +331,14 @@ def _sparse_depth_trainer(
 ):
     """A tiny trainer on removal_1's pre scan whose depth is kept on 1 % of the pixels (as
     structure-from-motion points would give it); returns it and the scan's dense depth."""
-    from neoedit.scene import Scene, SceneMeta
-    from neoedit.training.defaults import scene_box
+    from neoedit.scene import Scene
     from neoedit.training.trainer import Trainer
 
     data = load_scene_data(sim_root / "removal_1" / "pre")
     dense = data.depth_m.copy()
     keep = np.random.default_rng(0).random(dense.shape) < 0.01
     data.depth_m = np.where(keep, dense, 0.0).astype(np.float32)
-    meta = SceneMeta(
-        data_path="x",
-        aabb_m=scene_box(data),
-        background_rgb=[1.0, 1.0, 1.0],
-        field=TINY_FIELD,
-        grid=TINY_GRID,
-        render=TINY_RENDER,
-    )
+    meta = _tiny_meta(data)
     cfg = TrainConfig(
         rays_per_batch=256,
         sparse_depth_rays=depth_rays,
@@ -400,20 +399,12 @@ def test_sparse_depth_is_sampled_and_shapes_the_geometry(sim_root: Path, tmp_pat
 def test_object_ray_share_draws_the_objects_pixels(sim_root: Path, tmp_path: Path):
     """--object-ray-share: that share of each batch lies on the dataset's objects, the rest
     stays uniform; a dataset that does not label its objects is refused before training."""
-    from neoedit.scene import Scene, SceneMeta
-    from neoedit.training.defaults import scene_box
+    from neoedit.scene import Scene
     from neoedit.training.object_rays import object_instance_ids
     from neoedit.training.trainer import Trainer
 
     data = load_scene_data(sim_root / "pick_place_1" / "pre")
-    meta = SceneMeta(
-        data_path="x",
-        aabb_m=scene_box(data),
-        background_rgb=[1.0, 1.0, 1.0],
-        field=TINY_FIELD,
-        grid=TINY_GRID,
-        render=TINY_RENDER,
-    )
+    meta = _tiny_meta(data)
     ids = object_instance_ids(data)
     assert ids and all(data.instance_names[i] not in ("table", "robot arm") for i in ids)
     cfg = TrainConfig(rays_per_batch=400, object_ray_share=0.5)
