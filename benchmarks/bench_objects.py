@@ -117,12 +117,7 @@ def surface_points(
     points, dirs, colours = [], [], []
     for view in views:
         mask = object_pixels(data, int(view), instance)
-        ys, xs = np.nonzero(mask)
-        z = depth[view][mask]
-        x = (xs + 0.5 - cams.cx[view]) / cams.fx[view] * z
-        y = -(ys + 0.5 - cams.cy[view]) / cams.fy[view] * z
-        cam = np.stack([x, y, -z, np.ones_like(z)], 1)
-        world = (cam @ cams.camera_to_world[view].T)[:, :3]
+        world = cams.backproject_depth(int(view), depth[view])[mask]
         d = world - cams.camera_to_world[view][:3, 3]
         points.append(world)
         dirs.append(d / np.linalg.norm(d, axis=1, keepdims=True))
@@ -168,13 +163,13 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     if args.views < 1 or args.ceiling_steps < 0:
         parser.error("--views must be at least 1 and --ceiling-steps at least 0")
-    data = load_scene_data(args.data)
-    if data.instance_ids is None or data.depth_m is None:
-        raise SystemExit(f"{args.data}: needs depth and instance images (a NEO-Sim scan)")
     try:
+        data = load_scene_data(args.data)
         scene = load_scene(args.scene)
     except NeoError as e:
         raise SystemExit(str(e)) from e
+    if data.instance_ids is None or data.depth_m is None:
+        raise SystemExit(f"{args.data}: needs depth and instance images (a NEO-Sim scan)")
     train = data.indices("train")
     views = train[:: max(1, len(train) // args.views)][: args.views]
     print(
